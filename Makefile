@@ -1,0 +1,30 @@
+# Two set-up commands: `make demo` and `make test`. Both create .venv if missing.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test test-slow bench install clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --upgrade pip
+
+# ONE pip command with torch pinned, so no newer CUDA torch is ever pulled.
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/pip install "torch==2.13.0" -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+demo: $(STAMP)
+	$(BIN)/vid2sim demo
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -m "not slow and not gpu" -n 2 --timeout 900
+
+test-slow: $(STAMP)
+	$(BIN)/python -m pytest -m "slow" --timeout 3600
+
+clean:
+	rm -rf $(VENV) vid2sim-registry .pytest_cache

@@ -1,0 +1,11 @@
+"""Vid2Sim factory: monocular walking videos -> simulation-ready navigation scenes.
+
+Subpackages (one responsibility each):
+  registry/  versioned scene registry (content-addressed blobs + Delta Lake manifests)
+  splats/    Gaussian-splat model, PLY I/O and the renderer (torch reference, numba CPU, gsplat CUDA)
+  factory/   pipeline stages: decode -> privacy/masks -> SfM -> metric frame -> splats -> mesh -> commit
+  envs/      Gymnasium hybrid environments (splat rendering + pybullet physics)
+  cluster/   Ray actors for parallel rollouts, training and evaluation
+"""
+
+__version__ = "0.1.0"

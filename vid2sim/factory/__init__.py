@@ -1,0 +1,6 @@
+"""Factory: pipeline stages from a walking video to a registered simulation scene.
+
+Each stage is a module with a config dataclass, named presets, and
+`main(conf, inputs..., out_dir) -> Path`; finished outputs are marked with
+`stage.json` (see `stage.py`) so re-runs skip work already done.
+"""

@@ -1,0 +1,91 @@
+"""Stage convention: resumable, cached outputs keyed by config + input hashes.
+
+A stage writes into its own folder and, when finished, an atomic `stage.json`
+marker holding the stage name, the cache key and a summary. A folder without
+the marker (a stage killed mid-way) is treated as not done and redone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+from vid2sim.versioning import code_version, config_hash, to_jsonable
+
+MARKER = "stage.json"
+
+
+class StageError(RuntimeError):
+    """A stage could not produce its output; `reason` is a short machine-readable tag."""
+
+    def __init__(self, stage: str, reason: str, detail: str = "") -> None:
+        self.stage, self.reason, self.detail = stage, reason, detail
+        super().__init__(f"[{stage}] {reason}" + (f": {detail}" if detail else ""))
+
+
+@dataclass(frozen=True)
+class StageRecord:
+    """Contents of a finished stage's marker."""
+
+    stage: str
+    key: str
+    summary: dict
+    seconds: float
+    code_version: str
+
+
+def stage_key(stage: str, conf: Any, *input_keys: str) -> str:
+    """Cache key of a stage run: its name, config and the keys of its inputs."""
+    return config_hash(stage, conf, list(input_keys))
+
+
+def load_record(out_dir: Path) -> Optional[StageRecord]:
+    path = Path(out_dir) / MARKER
+    if not path.is_file():
+        return None
+    try:
+        data = json.loads(path.read_text())
+        return StageRecord(**data)
+    except (ValueError, TypeError):
+        return None
+
+
+def is_done(out_dir: Path, key: str) -> bool:
+    rec = load_record(out_dir)
+    return rec is not None and rec.key == key
+
+
+def mark_done(out_dir: Path, stage: str, key: str, summary: dict, seconds: float) -> StageRecord:
+    """Atomically write the marker (write to a temp file, then rename)."""
+    out_dir = Path(out_dir)
+    rec = StageRecord(stage=stage, key=key, summary=to_jsonable(summary), seconds=seconds,
+                      code_version=code_version())
+    fd, tmp = tempfile.mkstemp(dir=out_dir, prefix=".stage-", suffix=".json")
+    with os.fdopen(fd, "w") as f:
+        json.dump(to_jsonable(rec), f, indent=2)
+    os.replace(tmp, out_dir / MARKER)
+    return rec
+
+
+def fresh_dir(out_dir: Path) -> Path:
+    """Empty `out_dir` (a stale, unfinished output) and return it."""
+    out_dir = Path(out_dir)
+    if out_dir.exists():
+        shutil.rmtree(out_dir)
+    out_dir.mkdir(parents=True)
+    return out_dir
+
+
+class Timer:
+    def __enter__(self) -> "Timer":
+        self.t0 = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.seconds = time.perf_counter() - self.t0
