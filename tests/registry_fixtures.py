@@ -1,0 +1,105 @@
+"""Small real scene bundles for registry tests (a few hundred Gaussians, a trimesh box).
+
+Importable from spawned processes (no pytest dependency).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+import zlib
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from vid2sim.factory.posed import PosedClip, PosedFrame
+from vid2sim.registry.bundle import make_scene_json, write_bundle
+
+
+def write_splats_ply(path: Path, n: int = 300, seed: int = 0, sh_rest: int = 0) -> Path:
+    """Standard 3DGS binary PLY with `n` random Gaussians."""
+    from plyfile import PlyData, PlyElement
+
+    rng = np.random.default_rng(seed)
+    names = ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+    names += [f"f_rest_{i}" for i in range(sh_rest)]
+    names += ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    data = np.zeros(n, dtype=[(k, "f4") for k in names])
+    for k in names:
+        data[k] = rng.normal(size=n).astype(np.float32)
+    data["nx"] = data["ny"] = data["nz"] = 0
+    PlyData([PlyElement.describe(data, "vertex")]).write(str(path))
+    return path
+
+
+def write_box_ply(path: Path, extents=(4.0, 3.0, 2.0)) -> Path:
+    import trimesh
+
+    trimesh.creation.box(extents=extents).export(str(path))
+    return path
+
+
+def write_png(path: Path, w: int = 8, h: int = 6, seed: int = 0) -> Path:
+    """A tiny RGB PNG written by hand (no image library needed)."""
+    rng = np.random.default_rng(seed)
+    img = rng.integers(0, 255, size=(h, w, 3), dtype=np.uint8)
+    raw = b"".join(b"\x00" + img[y].tobytes() for y in range(h))
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 2, 0, 0, 0)
+    path.write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(raw))
+                     + chunk(b"IEND", b""))
+    return path
+
+
+def cameras_table(n: int = 16):
+    frames = []
+    for i in range(n):
+        T = np.eye(4)
+        T[0, 3] = 0.1 * i
+        K = np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]])
+        frames.append(PosedFrame(i, f"{i:05d}.jpg", i / 10.0, 64, 48, K, T, "test" if i % 8 == 0 else "train"))
+    return PosedClip(frames=frames, images_dir=Path(".")).cameras_table()
+
+
+def make_bundle(
+    out_dir: Path,
+    scene_id: str = "scene-a",
+    *,
+    group: Optional[str] = None,
+    seed: int = 0,
+    n_splats: int = 300,
+    tags: tuple[str, ...] = (),
+    metrics: Optional[dict] = None,
+    extras: bool = False,
+) -> Path:
+    """Write a valid bundle for `scene_id` into `out_dir`; `seed` changes the content."""
+    out_dir = Path(out_dir)
+    work = out_dir.parent / f".{out_dir.name}.inputs"
+    work.mkdir(parents=True, exist_ok=True)
+    sha = hashlib.sha256(f"video:{group or scene_id}".encode()).hexdigest()
+    scene = make_scene_json(
+        scene_id, source_uri=f"file:///videos/{group or scene_id}.mp4", source_sha256=sha,
+        clip_start_s=0.0, clip_end_s=10.0 + seed, group=group, scale_source="test-fixture",
+        metrics=metrics if metrics is not None else {"psnr": 25.0 + seed % 5}, config={"seed": seed},
+        code_version="test", tags=tags)
+    grid = np.zeros((10, 12), np.uint8)
+    grid[2:8, 3:9] = 1
+    ex = {}
+    if extras:
+        (work / "colmap").mkdir(exist_ok=True)
+        (work / "colmap" / "points3D.txt").write_text(f"# points {seed}\n")
+        ex = {"visual.ply": write_box_ply(work / "visual.ply", (1, 1, 1)), "colmap": work / "colmap"}
+    write_bundle(
+        out_dir, scene_json=scene,
+        splats_ply=write_splats_ply(work / "s.ply", n_splats, seed),
+        collision_ply=write_box_ply(work / "c.ply"),
+        walkable=(grid, (-1.0, -2.0), 0.5), cameras=cameras_table(),
+        preview_png=write_png(work / "p.png", seed=seed), extras=ex, overwrite=True)
+    import shutil
+
+    shutil.rmtree(work, ignore_errors=True)
+    return out_dir
