@@ -6,5 +6,9 @@ bundles, lists/queries/splits them and materialises them back for the envs.
 
 from vid2sim.registry.bundle import (BundleError, BundleInfo, make_scene_json, validate_bundle,
                                      write_bundle)
+from vid2sim.registry.records import Artifact, SceneRecord
+from vid2sim.registry.split import Split, SplitError
+from vid2sim.registry.store import Registry, RegistryError, SceneNotFound
 
-__all__ = ["BundleError", "BundleInfo", "make_scene_json", "validate_bundle", "write_bundle"]
+__all__ = ["Artifact", "BundleError", "BundleInfo", "Registry", "RegistryError", "SceneNotFound",
+           "SceneRecord", "Split", "SplitError", "make_scene_json", "validate_bundle", "write_bundle"]

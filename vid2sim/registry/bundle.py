@@ -47,6 +47,8 @@ SHA256_RE = re.compile(r"[0-9a-f]{64}")
 SPLAT_PROPERTIES = ("x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
                     "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3")
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+# Top-level files that are bookkeeping, not content (checkout marker, factory stage marker).
+IGNORED_FILES = (".vid2sim-checkout.json", "stage.json")
 
 # scene.json layout: required keys (and optional ones) per object.
 TOP_REQUIRED = ("scene_id", "source", "world_frame", "metrics", "pipeline", "tags")
@@ -319,10 +321,13 @@ def check_png(path: Path) -> None:
 
 
 def list_artifacts(folder: Path) -> dict[str, Path]:
-    """All regular files under `folder` as {relative posix name: path}; rejects symlinks."""
+    """All regular files under `folder` as {relative posix name: path} (minus IGNORED_FILES);
+    rejects symlinks."""
     out: dict[str, Path] = {}
     for p in sorted(folder.rglob("*")):
         rel = p.relative_to(folder).as_posix()
+        if rel in IGNORED_FILES:
+            continue
         if p.is_symlink():
             raise BundleError(p, "symlinks are not allowed in a bundle")
         if p.is_file():

@@ -1,0 +1,219 @@
+"""Content-addressed blob store: `<root>/blobs/ab/cdef...` keyed by sha256.
+
+Writes go to `<root>/blobs/tmp/<random>` and are renamed into place, so a blob path either
+holds the full content or does not exist. Identical content is stored once. Two backends share
+one small interface: `LocalBlobStore` (a folder; os.replace + fsync) and `ArrowBlobStore` (any
+pyarrow FileSystem, including fsspec filesystems wrapped by `pyarrow.fs.FSSpecHandler`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import time
+import uuid
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from pathlib import Path
+from typing import BinaryIO, Iterator
+
+CHUNK = 1 << 20
+TMP_DIR = "tmp"
+
+
+def sha256_file(path: Path) -> tuple[str, int]:
+    """(hex sha256, size in bytes) of a local file."""
+    h, n = hashlib.sha256(), 0
+    with open(path, "rb") as f:
+        while chunk := f.read(CHUNK):
+            h.update(chunk)
+            n += len(chunk)
+    return h.hexdigest(), n
+
+
+def sha256_stream(stream: BinaryIO) -> tuple[str, int]:
+    h, n = hashlib.sha256(), 0
+    while chunk := stream.read(CHUNK):
+        h.update(chunk)
+        n += len(chunk)
+    return h.hexdigest(), n
+
+
+@dataclass(frozen=True)
+class BlobInfo:
+    sha256: str  # or the temp file name for leftovers in tmp/
+    mtime: float  # seconds since epoch
+    is_temp: bool = False
+
+
+def blob_relpath(sha: str) -> str:
+    if len(sha) != 64 or any(c not in "0123456789abcdef" for c in sha):
+        raise ValueError(f"not a sha256 hex digest: {sha!r}")
+    return f"{sha[:2]}/{sha[2:]}"
+
+
+class BlobStore(ABC):
+    """What the registry needs from a blob store."""
+
+    @abstractmethod
+    def exists(self, sha: str) -> bool: ...
+
+    @abstractmethod
+    def put_file(self, path: Path, sha: str) -> bool:
+        """Store `path` under `sha` (its precomputed hash); False if already present."""
+
+    @abstractmethod
+    def open(self, sha: str) -> BinaryIO: ...
+
+    @abstractmethod
+    def list(self) -> Iterator[BlobInfo]: ...
+
+    @abstractmethod
+    def delete(self, info: BlobInfo) -> None: ...
+
+    def rehash(self, sha: str) -> tuple[str, int]:
+        with self.open(sha) as f:
+            return sha256_stream(f)
+
+    def copy_to(self, sha: str, dest: Path) -> tuple[str, int]:
+        """Write blob `sha` to a local file; return the (hash, size) of what was written."""
+        h, n = hashlib.sha256(), 0
+        with self.open(sha) as src, open(dest, "wb") as out:
+            while chunk := src.read(CHUNK):
+                h.update(chunk)
+                n += len(chunk)
+                out.write(chunk)
+        return h.hexdigest(), n
+
+
+def _check_copy(sha: str, got: str, path: Path) -> None:
+    if got != sha:
+        raise IOError(f"{path}: content changed while storing (expected sha256 {sha}, read {got})")
+
+
+class LocalBlobStore(BlobStore):
+    """Blobs in a local folder."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    def path(self, sha: str) -> Path:
+        return self.root / blob_relpath(sha)
+
+    def exists(self, sha: str) -> bool:
+        return self.path(sha).is_file()
+
+    def put_file(self, path: Path, sha: str) -> bool:
+        final = self.path(sha)
+        if final.is_file():
+            os.utime(final)  # refresh mtime so gc's grace period protects a blob about to be referenced
+            return False
+        tmp_dir = self.root / TMP_DIR
+        tmp_dir.mkdir(parents=True, exist_ok=True)
+        tmp = tmp_dir / uuid.uuid4().hex
+        try:
+            h = hashlib.sha256()
+            with open(path, "rb") as src, open(tmp, "wb") as out:
+                while chunk := src.read(CHUNK):
+                    h.update(chunk)
+                    out.write(chunk)
+                out.flush()
+                os.fsync(out.fileno())
+            _check_copy(sha, h.hexdigest(), Path(path))
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(tmp, final)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return True
+
+    def open(self, sha: str) -> BinaryIO:
+        return open(self.path(sha), "rb")
+
+    def list(self) -> Iterator[BlobInfo]:
+        if not self.root.is_dir():
+            return
+        for d in sorted(self.root.iterdir()):
+            if not d.is_dir():
+                continue
+            for f in sorted(d.iterdir()):
+                try:
+                    mtime = f.stat().st_mtime
+                except FileNotFoundError:
+                    continue
+                if d.name == TMP_DIR:
+                    yield BlobInfo(f.name, mtime, is_temp=True)
+                elif len(d.name) == 2:
+                    yield BlobInfo(d.name + f.name, mtime)
+
+    def delete(self, info: BlobInfo) -> None:
+        p = self.root / TMP_DIR / info.sha256 if info.is_temp else self.path(info.sha256)
+        p.unlink(missing_ok=True)
+
+
+class ArrowBlobStore(BlobStore):
+    """Blobs on any `pyarrow.fs.FileSystem` (S3, GCS, HDFS, local, or fsspec via FSSpecHandler)."""
+
+    def __init__(self, fs, base: str) -> None:
+        self.fs, self.base = fs, base.rstrip("/")
+
+    def path(self, sha: str) -> str:
+        return f"{self.base}/{blob_relpath(sha)}"
+
+    def exists(self, sha: str) -> bool:
+        import pyarrow.fs as pafs
+
+        return self.fs.get_file_info(self.path(sha)).type == pafs.FileType.File
+
+    def put_file(self, path: Path, sha: str) -> bool:
+        if self.exists(sha):
+            return False
+        tmp = f"{self.base}/{TMP_DIR}/{uuid.uuid4().hex}"
+        final = self.path(sha)
+        self.fs.create_dir(f"{self.base}/{TMP_DIR}", recursive=True)
+        self.fs.create_dir(final.rsplit("/", 1)[0], recursive=True)
+        h = hashlib.sha256()
+        with open(path, "rb") as src, self.fs.open_output_stream(tmp) as out:
+            while chunk := src.read(CHUNK):
+                h.update(chunk)
+                out.write(chunk)
+        try:
+            _check_copy(sha, h.hexdigest(), Path(path))
+            self.fs.move(tmp, final)
+        except BaseException:
+            self.fs.delete_file(tmp)
+            raise
+        return True
+
+    def open(self, sha: str) -> BinaryIO:
+        return self.fs.open_input_stream(self.path(sha))
+
+    def list(self) -> Iterator[BlobInfo]:
+        import pyarrow.fs as pafs
+
+        sel = pafs.FileSelector(self.base, recursive=True, allow_not_found=True)
+        for info in self.fs.get_file_info(sel):
+            if info.type != pafs.FileType.File:
+                continue
+            rel = info.path[len(self.base):].strip("/").split("/")
+            mtime = info.mtime.timestamp() if info.mtime is not None else time.time()
+            if len(rel) == 2 and rel[0] == TMP_DIR:
+                yield BlobInfo(rel[1], mtime, is_temp=True)
+            elif len(rel) == 2 and len(rel[0]) == 2:
+                yield BlobInfo(rel[0] + rel[1], mtime)
+
+    def delete(self, info: BlobInfo) -> None:
+        p = f"{self.base}/{TMP_DIR}/{info.sha256}" if info.is_temp else self.path(info.sha256)
+        self.fs.delete_file(p)
+
+
+def arrow_filesystem(uri: str):
+    """(pyarrow FileSystem, path) for a URI; falls back to fsspec (e.g. memory://)."""
+    import pyarrow.fs as pafs
+
+    try:
+        return pafs.FileSystem.from_uri(uri)
+    except Exception:
+        import fsspec
+
+        fs, path = fsspec.core.url_to_fs(uri)
+        return pafs.PyFileSystem(pafs.FSSpecHandler(fs)), path
