@@ -1,0 +1,98 @@
+"""Read and write the standard 3DGS PLY (binary little-endian, one `vertex` element).
+
+Properties: x y z nx ny nz f_dc_0..2 f_rest_0..(3*(K-1)-1) opacity scale_0..2 rot_0..3,
+all float32. f_rest is channel-major as in the original 3DGS: the K-1 higher-band
+coefficients of R, then of G, then of B. opacity is the logit, scale_* the log-scales,
+rot_* the (w, x, y, z) quaternion (not necessarily normalised).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement
+
+from .model import GaussianModel
+from .sh import sh_degree_from_coeffs
+
+REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
+            "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+
+
+class PlyFormatError(ValueError):
+    """A PLY that is not a 3DGS Gaussian file."""
+
+
+def _property_names(model: GaussianModel) -> list[str]:
+    n_rest = 3 * (model.sh.shape[1] - 1)
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(n_rest)]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+def write_ply(model: GaussianModel, path: str | Path) -> Path:
+    """Write `model` to `path` (parent folders created; written via a temp file)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    m = model.detach().to(torch.float32)
+    n = m.num
+    sh = m.sh.numpy()  # [N, K, 3]
+    rest = sh[:, 1:, :].transpose(0, 2, 1).reshape(n, -1)  # [N, 3*(K-1)] channel-major
+    columns = np.concatenate([m.means.numpy(), np.zeros((n, 3), np.float32), sh[:, 0, :], rest,
+                              m.opacity_logits.numpy()[:, None], m.log_scales.numpy(),
+                              m.quats.numpy()], axis=1)
+    names = _property_names(m)
+    data = np.empty(n, dtype=[(name, "<f4") for name in names])
+    for i, name in enumerate(names):
+        data[name] = columns[:, i]
+    tmp = path.with_name(path.name + ".tmp")
+    PlyData([PlyElement.describe(data, "vertex")], text=False, byte_order="<").write(str(tmp))
+    tmp.replace(path)
+    return path
+
+
+def read_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> GaussianModel:
+    """Read a 3DGS PLY of any SH degree 0..3 (normals optional)."""
+    path = Path(path)
+    try:
+        ply = PlyData.read(str(path))
+    except Exception as exc:  # plyfile raises several types on malformed input
+        raise PlyFormatError(f"{path}: not a readable PLY file ({exc})") from exc
+    if "vertex" not in [e.name for e in ply.elements]:
+        raise PlyFormatError(f"{path}: no 'vertex' element, so not a Gaussian-splat PLY")
+    v = ply["vertex"].data
+    names = set(v.dtype.names or ())
+    missing = [p for p in REQUIRED if p not in names]
+    if missing:
+        raise PlyFormatError(f"{path}: missing 3DGS properties {missing}")
+    rest_names = sorted((p for p in names if re.fullmatch(r"f_rest_\d+", p)),
+                        key=lambda p: int(p.split("_")[-1]))
+    if [int(p.split("_")[-1]) for p in rest_names] != list(range(len(rest_names))):
+        raise PlyFormatError(f"{path}: f_rest_* properties are not numbered 0..n-1")
+    if len(rest_names) % 3:
+        raise PlyFormatError(f"{path}: {len(rest_names)} f_rest_* properties is not a multiple of 3")
+    k = len(rest_names) // 3 + 1
+    try:
+        sh_degree_from_coeffs(k)
+    except ValueError as exc:
+        raise PlyFormatError(f"{path}: {exc}") from exc
+
+    def cols(props: list[str]) -> np.ndarray:
+        return np.stack([np.asarray(v[p], dtype=np.float64) for p in props], axis=1) \
+            if props else np.zeros((len(v), 0))
+
+    n = len(v)
+    sh = np.zeros((n, k, 3))
+    sh[:, 0, :] = cols(["f_dc_0", "f_dc_1", "f_dc_2"])
+    sh[:, 1:, :] = cols(rest_names).reshape(n, 3, k - 1).transpose(0, 2, 1)
+    t = lambda a: torch.as_tensor(np.ascontiguousarray(a), dtype=dtype)  # noqa: E731
+    return GaussianModel(
+        means=t(cols(["x", "y", "z"])),
+        quats=t(cols(["rot_0", "rot_1", "rot_2", "rot_3"])),
+        log_scales=t(cols(["scale_0", "scale_1", "scale_2"])),
+        opacity_logits=t(cols(["opacity"])[:, 0]),
+        sh=t(sh),
+    )
