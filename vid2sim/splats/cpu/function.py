@@ -1,0 +1,181 @@
+"""`rasterize` for the cpu backend: a torch.autograd.Function over the numba kernels.
+
+Forward: project -> bin -> per-tile composite (numba, parallel). Backward is hand-written:
+per-tile back-to-front pass -> per-splat projection VJP. grad2d / absgrad of the returned
+RasterOutput are filled (added into) by backward, as docs/splat_renderer.md specifies.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numba
+import numpy as np
+import torch
+
+from ..camera import Camera
+from ..sh import sh_degree_from_coeffs
+from ..types import RasterOutput, RasterSettings
+from .binning import bin_tiles, depth_order
+from .preprocess import F_X, F_Y, F_Z, NF, project_backward, project_forward
+from .raster import raster_backward, raster_forward
+
+
+def _np32(t: torch.Tensor) -> np.ndarray:
+    return np.ascontiguousarray(t.detach().to(torch.float32).cpu().numpy())
+
+
+def camera_arrays(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(world_to_cam [4,4] f64, centre [3] f64, (fx, fy, cx, cy) f64) for the kernels."""
+    view = np.ascontiguousarray(camera.world_to_cam.detach().to(torch.float64).numpy())
+    R, t = view[:3, :3], view[:3, 3]
+    return view, np.ascontiguousarray(-R.T @ t), np.array(
+        [camera.fx, camera.fy, camera.cx, camera.cy], np.float64)
+
+
+@dataclass
+class Frame:
+    """Everything forward keeps for backward and for the caller (numpy, float32)."""
+
+    ids: np.ndarray  # [V] int64 visible splat indices (model order)
+    fo: np.ndarray  # [V, NF] per-visible-splat screen quantities
+    tile_offsets: np.ndarray  # [n_tiles + 1]
+    inst: np.ndarray  # [M] visible index per (tile, depth) instance
+    color: np.ndarray  # [H, W, 3]
+    alpha: np.ndarray  # [H, W]
+    depth: np.ndarray  # [H, W]
+    normal: np.ndarray  # [H, W, 3]
+    median: np.ndarray  # [H, W]
+    T_final: np.ndarray  # [H, W]
+    n_contrib: np.ndarray  # [H, W] int32
+    med_idx: np.ndarray  # [H, W] int32
+    means2d: np.ndarray  # [N, 2]
+    radii: np.ndarray  # [N] int32
+
+
+def composite(ids: np.ndarray, fo: np.ndarray, rect: np.ndarray, width: int, height: int,
+              tile: int) -> tuple:
+    """Bin the visible splats (fo [V, NF], rect [V, 4]) and composite all tiles."""
+    tiles_x = (width + tile - 1) // tile
+    n_tiles = tiles_x * ((height + tile - 1) // tile)
+    order = depth_order(np.ascontiguousarray(fo[:, F_Z]))
+    offsets, inst = bin_tiles(order, rect, tiles_x, n_tiles)
+    color = np.empty((height, width, 3), np.float32)
+    normal = np.empty((height, width, 3), np.float32)
+    alpha, depth, median, T_final = (np.empty((height, width), np.float32) for _ in range(4))
+    n_contrib = np.empty((height, width), np.int32)
+    med_idx = np.empty((height, width), np.int32)
+    raster_forward(fo, offsets, inst, width, height, tile, color, alpha, depth, normal,
+                   median, T_final, n_contrib, med_idx)
+    return offsets, inst, color, alpha, depth, normal, median, T_final, n_contrib, med_idx
+
+
+def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera,
+                  settings: RasterSettings) -> Frame:
+    """Run the whole forward on float32 numpy inputs."""
+    view, campos, cam = camera_arrays(camera)
+    W, H, tile = settings.width, settings.height, settings.tile_size
+    N = means.shape[0]
+    fo = np.empty((N, NF), np.float32)
+    rect = np.empty((N, 4), np.int32)
+    radii = np.empty(N, np.int32)
+    cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
+    project_forward(np.arange(N, dtype=np.int64), means, quats, log_scales, logits, sh, deg,
+                    view, campos, cam, W, H, float(settings.near), float(settings.far),
+                    cov_alpha, tile, fo, rect, radii)
+    ids = np.flatnonzero(radii)
+    fo_v, rect_v = fo[ids], rect[ids]
+    parts = composite(ids, fo_v, rect_v, W, H, tile)
+    means2d = np.zeros((N, 2), np.float32)
+    means2d[ids, 0] = fo_v[:, F_X]
+    means2d[ids, 1] = fo_v[:, F_Y]
+    return Frame(ids, fo_v, *parts, means2d=means2d, radii=radii)
+
+
+class _Rasterize(torch.autograd.Function):
+    """Inputs: the five model tensors + a Setup holder; outputs: the raw images."""
+
+    @staticmethod
+    def forward(ctx, means, quats, log_scales, logits, sh, setup):
+        arrays = [_np32(t) for t in (means, quats, log_scales, logits, sh)]
+        frame = forward_frame(*arrays, setup.deg, setup.camera, setup.settings)
+        ctx.setup, ctx.frame, ctx.arrays = setup, frame, arrays
+        dt = means.dtype
+        outs = [torch.from_numpy(a).to(dt) for a in
+                (frame.color, frame.alpha, frame.depth, frame.normal, frame.median,
+                 frame.means2d)]
+        radii = torch.from_numpy(frame.radii)
+        ctx.mark_non_differentiable(outs[5], radii)
+        return (*outs, radii)
+
+    @staticmethod
+    def backward(ctx, d_color, d_alpha, d_depth, d_normal, d_median, _d_m2d, _d_radii):
+        setup, fr = ctx.setup, ctx.frame
+        means, quats, log_scales, logits, sh = ctx.arrays
+        H, W = fr.alpha.shape
+        grads = [np.zeros((H, W, 3), np.float32) if g is None else _np32(g)
+                 for g in (d_color, d_normal)]
+        d_color_np, d_normal_np = grads
+        d_alpha_np, d_depth_np, d_median_np = (np.zeros((H, W), np.float32) if g is None
+                                               else _np32(g)
+                                               for g in (d_alpha, d_depth, d_median))
+        g2 = raster_backward(fr.fo, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
+                             setup.settings.tile_size, fr.T_final, fr.n_contrib, fr.med_idx,
+                             d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
+                             numba.get_num_threads())
+        N = means.shape[0]
+        out = [np.zeros_like(a) for a in (means, quats, log_scales, logits, sh)]
+        grad2d = np.zeros((N, 2), np.float32)
+        absgrad = np.zeros((N, 2), np.float32)
+        view, campos, cam = camera_arrays(setup.camera)
+        project_backward(fr.ids, means, quats, log_scales, logits, sh, setup.deg, view, campos,
+                         cam, W, H, g2, *out, grad2d, absgrad, setup.absgrad is not None)
+        setup.grad2d.add_(torch.from_numpy(grad2d).to(setup.grad2d.dtype))
+        if setup.absgrad is not None:
+            setup.absgrad.add_(torch.from_numpy(absgrad).to(setup.absgrad.dtype))
+        dt = setup.dtype
+        return (*(torch.from_numpy(a).to(dt) for a in out), None)
+
+
+@dataclass
+class _Setup:
+    camera: Camera
+    settings: RasterSettings
+    deg: int
+    grad2d: torch.Tensor
+    absgrad: torch.Tensor | None
+    dtype: torch.dtype
+
+
+def check_inputs(means, quats, log_scales, opacity_logits, sh, camera, settings) -> None:
+    """ValueError naming the offending input when shapes or sizes disagree."""
+    if (settings.width, settings.height) != (camera.width, camera.height):
+        raise ValueError(f"RasterSettings size {settings.width}x{settings.height} differs from "
+                         f"camera size {camera.width}x{camera.height}")
+    n = means.shape[0]
+    for name, t, shape in (("means", means, (n, 3)), ("quats", quats, (n, 4)),
+                           ("log_scales", log_scales, (n, 3)),
+                           ("opacity_logits", opacity_logits, (n,))):
+        if tuple(t.shape) != shape:
+            raise ValueError(f"cpu rasterize: {name} must be {shape}, got {tuple(t.shape)}")
+    if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
+        raise ValueError(f"cpu rasterize: sh must be [N, K, 3], got {tuple(sh.shape)}")
+
+
+def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
+              settings: RasterSettings, absgrad: bool = False) -> RasterOutput:
+    """Raw accumulations (RasterOutput) for one camera; differentiable w.r.t. the model.
+
+    After `loss.backward()`, `out.grad2d` [N, 2] holds dL/dmeans2d and, with absgrad=True,
+    `out.absgrad` [N, 2] the AbsGS sum of per-pixel |dL_p/dmeans2d|.
+    """
+    check_inputs(means, quats, log_scales, opacity_logits, sh, camera, settings)
+    dt, N = means.dtype, means.shape[0]
+    deg = min(settings.active_sh_degree, sh_degree_from_coeffs(sh.shape[1]))
+    setup = _Setup(camera, settings, deg, means.new_zeros(N, 2),
+                   means.new_zeros(N, 2) if absgrad else None, dt)
+    color, alpha, depth, normal, median, means2d, radii = _Rasterize.apply(
+        means, quats, log_scales, opacity_logits, sh, setup)
+    return RasterOutput(color_accum=color, alpha=alpha, depth_accum=depth,
+                        normal_accum=normal, median_depth=median, means2d=means2d,
+                        radii=radii, absgrad=setup.absgrad, grad2d=setup.grad2d)
