@@ -17,6 +17,8 @@ app = typer.Typer(
 
 def _register_subapps() -> None:
     """Each subsystem adds one import + add_typer line here."""
+    from vid2sim.registry.cli import app as registry_app
+    app.add_typer(registry_app, name="registry")
 
 
 @app.command()
