@@ -19,6 +19,8 @@ def _register_subapps() -> None:
     """Each subsystem adds one import + add_typer line here."""
     from vid2sim.registry.cli import app as registry_app
     app.add_typer(registry_app, name="registry")
+    from vid2sim.factory.cli_eval import app as eval_app
+    app.add_typer(eval_app, name="eval")
 
 
 @app.command()
