@@ -1,0 +1,121 @@
+"""Walkable map and geometry metrics on analytic inputs (no fusion): fast unit tests."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from vid2sim.factory import walkable
+from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
+from vid2sim.factory.walkable import WalkableConfig, WalkableError, WalkableMap, walkable_map
+
+
+def plane_points(x0, x1, y0, y1, step=0.05) -> np.ndarray:
+    x, y = np.meshgrid(np.arange(x0, x1, step) + step / 2, np.arange(y0, y1, step) + step / 2)
+    return np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+
+
+def box(cx, cy, sx, sy, h, z0=0.0) -> trimesh.Trimesh:
+    b = trimesh.creation.box(extents=(sx, sy, h))
+    b.apply_translation((cx, cy, z0 + h / 2))
+    return b
+
+
+PATH = np.array([[x, 0.0, 1.5] for x in np.linspace(-3.5, 3.5, 15)])  # walks along +x
+
+
+def test_obstacle_footprint_inflated_by_robot_radius():
+    conf = WalkableConfig(robot_radius_m=0.4)
+    wm = walkable_map(plane_points(-4, 4, -2, 2), box(0, 1.2, 1.0, 0.6, 1.0), PATH, conf)
+    # box covers x in [-0.5, 0.5], y in [0.9, 1.5]
+    assert not wm.lookup(np.array([0.0, 0.0, 0.0]), np.array([1.2, 0.9 - 0.3, 1.5 + 0.3])).any()
+    assert wm.lookup(np.array([0.0, -0.9 + 0.0, 1.0]), np.array([0.9 - 0.6, 0.0, 0.2])).all()
+    assert wm.lookup(PATH[:, 0], PATH[:, 1]).all()
+    # a bigger robot blocks more
+    big = walkable_map(plane_points(-4, 4, -2, 2), box(0, 1.2, 1.0, 0.6, 1.0), PATH,
+                       WalkableConfig(robot_radius_m=0.8))
+    assert big.area_m2() < wm.area_m2() - 1.0
+
+
+def test_height_band_ignores_low_and_overhead_geometry():
+    kerb = box(0, 1.0, 1.0, 1.0, 0.05)  # 5 cm: below the band
+    awning = box(0, -1.0, 1.0, 1.0, 0.2, z0=2.2)  # above the band
+    mesh = trimesh.util.concatenate([kerb, awning])
+    wm = walkable_map(plane_points(-4, 4, -2, 2), mesh, PATH, WalkableConfig())
+    assert wm.lookup(np.array([0.0, 0.0]), np.array([1.0, -1.0])).all()
+    wall = box(0, 1.0, 1.0, 1.0, 3.0)  # spans the band
+    wm2 = walkable_map(plane_points(-4, 4, -2, 2), wall, PATH, WalkableConfig())
+    assert not wm2.lookup(np.array([0.0]), np.array([1.0])).any()
+
+
+def test_only_the_path_component_is_kept():
+    wall = box(0, 1.0, 8.0, 0.2, 1.0)  # splits the ground at y = 1
+    wm = walkable_map(plane_points(-4, 4, -2, 3), wall, PATH, WalkableConfig())
+    assert wm.lookup(np.array([0.0]), np.array([-1.0])).all()
+    assert not wm.lookup(np.array([0.0, 2.0]), np.array([2.5, 2.5])).any()  # other side
+
+
+def test_unseen_ground_is_not_walkable_and_small_holes_close():
+    gp = plane_points(-4, 4, -2, 2)
+    hole = (np.abs(gp[:, 0] - 2.0) < 0.12) & (np.abs(gp[:, 1] - 1.0) < 0.12)  # 0.25 m gap
+    wm = walkable_map(gp[~hole], None, PATH, WalkableConfig())
+    assert wm.lookup(np.array([2.0]), np.array([1.0])).all()  # closed
+    assert not wm.lookup(np.array([0.0, 0.0]), np.array([3.0, -3.0])).any()  # never seen
+
+
+def test_path_off_ground_raises():
+    far_path = PATH + np.array([0.0, 20.0, 0.0])
+    with pytest.raises(WalkableError) as e:
+        walkable_map(plane_points(-4, 4, -2, 2), None, far_path,
+                     WalkableConfig(path_radius_m=0.0, max_dist_from_path_m=100.0))
+    assert e.value.reason == "path_off_ground"
+    with pytest.raises(WalkableError, match="bad_camera_path"):
+        walkable_map(plane_points(-4, 4, -2, 2), None, np.zeros((0, 3)), WalkableConfig())
+
+
+def test_npz_round_trip_and_bad_files(tmp_path):
+    wm = walkable_map(plane_points(-4, 4, -2, 2), box(0, 1.2, 1.0, 0.6, 1.0), PATH,
+                      WalkableConfig())
+    p = wm.save(tmp_path / "walkable.npz")
+    with np.load(p) as z:
+        assert set(z.files) == {"grid", "origin", "resolution"}
+        assert z["grid"].dtype == np.uint8 and z["origin"].shape == (2,)
+    back = WalkableMap.load(p)
+    assert np.array_equal(back.grid, wm.grid) and np.allclose(back.origin, wm.origin)
+    assert back.resolution == wm.resolution and grid_iou(back, wm) == 1.0
+    np.savez(tmp_path / "nokeys.npz", grid=wm.grid)
+    with pytest.raises(WalkableError, match="missing keys"):
+        WalkableMap.load(tmp_path / "nokeys.npz")
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(WalkableError, match="junk.npz"):
+        WalkableMap.load(tmp_path / "junk.npz")
+
+
+def test_walkable_stage_rejects_unreadable_mesh(tmp_path):
+    (tmp_path / "collision.ply").write_text("garbage")
+    with pytest.raises(WalkableError) as e:
+        walkable.main(WalkableConfig(), plane_points(-1, 1, -1, 1), tmp_path / "collision.ply",
+                      PATH, tmp_path / "out")
+    assert e.value.reason == "bad_collision_mesh" and not (tmp_path / "out").exists()
+
+
+def test_grid_iou_resamples_across_resolution_and_origin():
+    a = WalkableMap(np.ones((20, 20), np.uint8), (0.0, 0.0), 0.1)  # [0, 2]^2
+    b = WalkableMap(np.ones((10, 10), np.uint8), (1.0, 0.0), 0.2)  # [1, 3] x [0, 2]
+    assert grid_iou(a, b) == pytest.approx(2.0 / 6.0, abs=1e-6)
+    c = WalkableMap(np.ones((40, 40), np.uint8), (0.0, 0.0), 0.05)  # same square, finer
+    assert grid_iou(a, c) == pytest.approx(1.0)
+    empty = WalkableMap(np.zeros((5, 5), np.uint8), (0.0, 0.0), 0.1)
+    assert grid_iou(empty, empty) == 1.0 and grid_iou(a, empty) == 0.0
+
+
+def test_chamfer_distance_of_shifted_meshes():
+    m = box(0, 0, 2.0, 2.0, 2.0)
+    same = chamfer_distance(m, m.copy(), n_samples=20_000)
+    assert same.symmetric < 0.02
+    shifted = m.copy()
+    shifted.apply_translation((0, 0, 0.3))
+    ch = chamfer_distance(m, shifted, n_samples=20_000)
+    # top/bottom faces are 0.3 m apart, side faces overlap except a 0.3 m strip
+    assert 0.05 < ch.a_to_b < 0.3 and ch.symmetric == pytest.approx((ch.a_to_b + ch.b_to_a) / 2)
