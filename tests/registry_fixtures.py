@@ -103,3 +103,29 @@ def make_bundle(
 
     shutil.rmtree(work, ignore_errors=True)
     return out_dir
+
+
+def concurrent_worker(root: str, wid: int, bundles: list[str], common: str, shared: str) -> list[str]:
+    """Run in a spawned process: add own bundles, the common bundle, and tag the shared scene."""
+    from vid2sim.registry import Registry
+
+    reg = Registry(root)
+    refs = []
+    for i, b in enumerate(bundles):
+        refs.append(reg.add(b).ref)
+        refs.append(reg.tag(shared, f"w{wid}-{i}").ref)
+        if i == 0:
+            reg.add(common)
+    return refs
+
+
+KILL_LOOP = """
+import sys
+from vid2sim.registry import Registry
+reg = Registry(sys.argv[1])
+reg.version  # open the table before announcing readiness
+print("ready", flush=True)
+for b in sys.argv[2:]:
+    reg.add(b)
+    print("added", b, flush=True)
+"""
