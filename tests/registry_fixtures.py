@@ -129,3 +129,21 @@ for b in sys.argv[2:]:
     reg.add(b)
     print("added", b, flush=True)
 """
+
+
+def synthetic_record(scene_id: str, group: str, *, psnr: float = 25.0, tags: tuple[str, ...] = (),
+                     status: str = "active", version: int = 1):
+    """A manifest record without files (for split logic and bulk benchmarks)."""
+    from datetime import datetime, timezone
+
+    from vid2sim.registry.records import Artifact, SceneRecord
+
+    h = hashlib.sha256(scene_id.encode()).hexdigest()
+    return SceneRecord(
+        scene_id=scene_id, version=version, status=status, event="add", message=None,
+        created_at=datetime.now(timezone.utc), source_uri=f"file:///videos/{group}.mp4",
+        source_sha256=hashlib.sha256(group.encode()).hexdigest(), clip_start_s=0.0, clip_end_s=10.0,
+        source_group=group, num_frames=100, num_train_frames=87, num_test_frames=13, num_splats=100000,
+        metrics={"psnr": psnr}, bounds=(0, 0, 0, 1, 1, 1), mesh_bounds=(0, 0, 0, 1, 1, 1),
+        walkable_area_m2=10.0, tags=tuple(tags), pipeline_hash="p", code_version="test", content_hash=h,
+        artifacts=(Artifact("scene.json", h, 10),))
