@@ -246,3 +246,21 @@ def test_size_mismatch_is_an_error():
     m = make_model([[0, 0, 5.0]], [[1, 1, 1]], [0.5])
     with pytest.raises(ValueError, match="differs from camera"):
         render(m, axis_camera(), RasterSettings(10, 10), backend="torch")
+
+
+def test_result_is_independent_of_tile_size():
+    params = [p.requires_grad_() for p in _scene(seed=11, n=40, degree=2)]
+    params[2].data += 0.3
+    cam = Camera(9.0, 9.0, 10.2, 7.9, 21, 15, torch.eye(4, dtype=D))
+    results = []
+    for ts in (1, 5, 16, 1000):
+        for p in params:
+            p.grad = None
+        o = rasterize(*params, cam, RasterSettings(21, 15, tile_size=ts), absgrad=True)
+        (o.color_accum.sum() + o.median_depth.sum() + o.depth_accum.sum()).backward()
+        results.append([o.color_accum, o.alpha, o.depth_accum, o.normal_accum, o.median_depth,
+                        o.grad2d, o.absgrad] + [p.grad.clone() for p in params])
+    assert results[0][1].max() > 0.5
+    for other in results[1:]:
+        for a, b in zip(results[0], other):
+            assert torch.allclose(a, b, atol=1e-12, rtol=1e-10)

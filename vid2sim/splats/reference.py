@@ -1,8 +1,8 @@
 """Plain-PyTorch reference rasteriser: the executable form of docs/splat_renderer.md.
 
-Written for clarity, not speed: every visible splat is evaluated at every pixel
-(dense [P, N] tensors, pixels processed in chunks), and autograd provides all
-gradients. It is the ground truth the `cpu` and `cuda` backends are tested against,
+Written for clarity, not speed: per image tile, every visible splat whose square
+[mean2d +- radius] touches the tile is evaluated at every pixel of the tile (dense
+[P, V] tensors), and autograd provides all gradients. It is the ground truth the `cpu` and `cuda` backends are tested against,
 and it runs in float32 or float64 (for gradcheck).
 """
 
@@ -24,7 +24,6 @@ ALPHA_MIN = 1.0 / 255.0
 ALPHA_MAX = 0.99
 T_MIN = 1e-4
 MEDIAN_T = 0.5
-CHUNK_ELEMS = 1 << 22  # pixels x splats per compositing chunk
 
 
 def check_camera(camera: Camera, settings: RasterSettings) -> None:
@@ -129,7 +128,8 @@ def project(means, quats, log_scales, opacity_logits, sh, camera: Camera,
 
 def _composite(pix: torch.Tensor, proj: Projection, m2d: torch.Tensor,
                offset: torch.Tensor | None) -> tuple[torch.Tensor, ...]:
-    """Front-to-back compositing of all visible splats at pixel centres pix [P, 2]."""
+    """Front-to-back compositing of the splats in `proj` (depth-sorted) at pixel
+    centres pix [P, 2]; m2d [V, 2] are their means2d, offset [P, V, 2] or None."""
     d = pix[:, None, :] - m2d[None, :, :]  # [P, V, 2]
     if offset is not None:
         d = d - offset
@@ -149,15 +149,25 @@ def _composite(pix: torch.Tensor, proj: Projection, m2d: torch.Tensor,
     depth = w @ proj.depths
     normal = w @ proj.normals
     acc = 1.0 - torch.prod(1.0 - alpha, dim=1)
-    with torch.no_grad():
-        crossed = T_after <= MEDIAN_T
-        hit = crossed.any(dim=1)
-        first = torch.argmax(crossed.to(torch.int8), dim=1) if alpha.shape[1] else None
-    if first is None:
-        median = torch.zeros_like(acc)
-    else:
-        median = torch.where(hit, proj.depths[first], torch.zeros_like(acc))
+    median = torch.zeros_like(acc)
+    if alpha.shape[1]:
+        with torch.no_grad():
+            crossed = T_after <= MEDIAN_T
+            hit = crossed.any(dim=1)
+            first = torch.argmax(crossed.to(torch.int8), dim=1)  # first crossing
+        median = torch.where(hit, proj.depths[first], median)
     return color, acc, depth, normal, median
+
+
+def _subset(proj: Projection, sel: torch.Tensor) -> Projection:
+    return Projection(**{k: getattr(proj, k)[sel] for k in proj.__dataclass_fields__})
+
+
+def _tiles(width: int, height: int, size: int):
+    """(x0, x1, y0, y1) pixel ranges of size x size tiles covering the image."""
+    for y0 in range(0, height, size):
+        for x0 in range(0, width, size):
+            yield x0, min(x0 + size, width), y0, min(y0 + size, height)
 
 
 def pixel_centres(width: int, height: int, dtype: torch.dtype) -> torch.Tensor:
@@ -201,17 +211,28 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
         m2d = m2d.view_as(m2d)  # own node, so the hook sees only the pixel path
         m2d.register_hook(_accumulate_into(grad2d, proj.ids, absolute=False))
 
-    pix = pixel_centres(W, H, dtype)
-    chunk = max(1, CHUNK_ELEMS // max(V, 1))
-    parts = []
-    for start in range(0, pix.shape[0], chunk):
+    # Tiles only bound the work: a splat can reach a pixel only inside its square
+    # [mean2d +- radius], so the result is the same for any tile size.
+    pix_all = pixel_centres(W, H, dtype)  # [H*W, 2]
+    with torch.no_grad():
+        lo = proj.means2d.detach() - proj.radii[:, None].to(dtype)  # [V, 2]
+        hi = proj.means2d.detach() + proj.radii[:, None].to(dtype)
+    parts, where = [], []
+    for x0, x1, y0, y1 in _tiles(W, H, max(1, settings.tile_size)):
+        sel = torch.nonzero((lo[:, 0] < x1) & (hi[:, 0] > x0)
+                            & (lo[:, 1] < y1) & (hi[:, 1] > y0)).squeeze(1)
+        rows = torch.arange(y0, y1)[:, None] * W + torch.arange(x0, x1)[None, :]
+        rows = rows.reshape(-1)
         offset = None
-        if absgrad and m2d.requires_grad:
-            offset = torch.zeros(min(chunk, pix.shape[0] - start), V, 2, dtype=dtype,
-                                 requires_grad=True)
-            offset.register_hook(_accumulate_into(absgrad_buf, proj.ids, absolute=True))
-        parts.append(_composite(pix[start:start + chunk], proj, m2d, offset))
-    color, acc, depth, normal, median = (torch.cat(p, dim=0) for p in zip(*parts))
+        if absgrad and m2d.requires_grad and sel.numel():
+            offset = torch.zeros(rows.numel(), sel.numel(), 2, dtype=dtype, requires_grad=True)
+            offset.register_hook(_accumulate_into(absgrad_buf, proj.ids[sel], absolute=True))
+        parts.append(_composite(pix_all[rows], _subset(proj, sel), m2d[sel], offset))
+        where.append(rows)
+    where = torch.cat(where)
+    color, acc, depth, normal, median = (
+        torch.cat(p, dim=0).new_zeros((H * W,) + p[0].shape[1:]).index_copy(
+            0, where, torch.cat(p, dim=0)) for p in zip(*parts))
 
     means2d_out = means.new_zeros(N, 2)
     means2d_out[proj.ids] = proj.means2d.detach()
