@@ -211,3 +211,24 @@ def test_bad_input_raises_named_error(case, tmp_path):
         meshing.main(MeshingConfig(), views, tmp_path / "out")
     assert e.value.reason == reason and e.value.stage == "meshing"
     assert not (tmp_path / "out").exists()  # nothing stored
+
+
+def test_ground_offset_from_alignment_error_is_still_removed():
+    """A ground 0.2 m above z = 0 (scale/alignment error) is found by the per-view estimate."""
+    scene = full_scene()
+    scene.apply_translation((0, 0, 0.2))
+    views, _ = ring_views(scene, n=8)
+    res = build_meshes(views, MeshingConfig())
+    tris = np.asarray(res.collision.vertices)[np.asarray(res.collision.triangles)]
+    res.collision.compute_triangle_normals()
+    flat = np.abs(np.asarray(res.collision.triangle_normals)[:, 2]) >= np.cos(np.deg2rad(15))
+    assert (flat & (np.abs(tris.mean(axis=1)[:, 2] - 0.2) < 0.15)).sum() < 20
+    shifted = obstacles()
+    shifted.apply_translation((0, 0, 0.2))
+    assert chamfer_distance(res.collision, shifted, 20_000).a_to_b < 0.08
+    # with the adaptation off, the 0.15 m band around z = 0 misses most of the ground
+    off = build_meshes(views, MeshingConfig(ground_adapt_m=0.0, face_ground_filter=False))
+    off.collision.compute_triangle_normals()
+    t2 = np.asarray(off.collision.vertices)[np.asarray(off.collision.triangles)]
+    flat2 = np.abs(np.asarray(off.collision.triangle_normals)[:, 2]) >= np.cos(np.deg2rad(15))
+    assert (flat2 & (np.abs(t2.mean(axis=1)[:, 2] - 0.2) < 0.15)).sum() > 1000

@@ -119,3 +119,14 @@ def test_chamfer_distance_of_shifted_meshes():
     ch = chamfer_distance(m, shifted, n_samples=20_000)
     # top/bottom faces are 0.3 m apart, side faces overlap except a 0.3 m strip
     assert 0.05 < ch.a_to_b < 0.3 and ch.symmetric == pytest.approx((ch.a_to_b + ch.b_to_a) / 2)
+
+
+def test_obstacle_heights_are_relative_to_the_local_ground():
+    gp = plane_points(-4, 4, -2, 2)
+    gp[:, 2] = 0.5  # a raised platform (e.g. an alignment offset)
+    bump = box(-2.0, 1.0, 0.6, 0.6, 0.05, z0=0.5)  # 5 cm above the local ground: walkable
+    block = box(2.0, 1.0, 0.6, 0.6, 0.3, z0=0.5)  # 30 cm: an obstacle
+    path = PATH + np.array([0, 0, 0.5])
+    wm = walkable_map(gp, trimesh.util.concatenate([bump, block]), path, WalkableConfig())
+    assert wm.lookup(np.array([-2.0]), np.array([1.0])).all()
+    assert not wm.lookup(np.array([2.0]), np.array([1.0])).any()

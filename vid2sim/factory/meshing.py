@@ -8,10 +8,11 @@ splats, or ground truth), writes into `out_dir`:
   meshing.json       summary (face counts, timings, config)
   stage.json         marker (vid2sim.factory.stage)
 
-Ground removal (choice, see README of the stage in the docstring of `ground_mask`): a pixel is
-ground when its rendered normal, rotated to world, lies within `ground_normal_deg` (paper:
-delta = 15 deg) of the ground normal (world +z; the world frame has the ground at z = 0) AND
-its back-projected point lies within `ground_band_m` of the ground plane. The height band keeps
+Ground removal (choice: pixel masking as the paper, plus a face filter): a pixel is ground
+when its rendered normal, rotated to world, lies within `ground_normal_deg` (paper: delta =
+15 deg) of the ground normal (world +z; the world frame has the ground at z = 0) AND its
+back-projected point lies within `ground_band_m` (0.15 m) of the ground height seen by that
+view (`view_ground_z`: z = 0 refined by at most `ground_adapt_m`). The height band keeps
 horizontal surfaces that are not the ground (box tops, benches, kerbs above the band). Two
 TSDFs are fused in one pass: the visual one gets every pixel, the collision one gets every
 pixel except the ground pixels. A final face-level filter removes any leftover face whose
@@ -50,6 +51,10 @@ class MeshingConfig:
     ground_normal_deg: float = 15.0  # paper's delta
     ground_band_m: float = 0.15  # |z| below this (ground plane z = 0) can be ground
     ground_z_m: float = 0.0
+    # per-view ground height: the 30th percentile z of flat pixels within this distance of
+    # ground_z_m (absorbs alignment error / gentle slopes); 0 disables
+    ground_adapt_m: float = 0.3
+    ground_adapt_min_pixels: int = 200
     face_ground_filter: bool = True  # also drop ground-like faces after extraction
     min_fragment_faces: int = 40  # components with fewer faces are dropped ...
     min_fragment_extent_m: float = 0.25  # ... and so are those whose bbox diagonal is smaller
@@ -131,7 +136,6 @@ def ground_mask(view: DepthView, valid: np.ndarray, conf: MeshingConfig) -> np.n
     angle uses |cos| so either normal orientation convention works.
     """
     pts = backproject(np.where(valid, view.depth, 0.0), view.K, view.cam_to_world)
-    near = np.abs(pts[..., 2] - conf.ground_z_m) < conf.ground_band_m
     if view.normal_cam is not None:
         R = np.asarray(view.cam_to_world, np.float64)[:3, :3]
         n_world = np.asarray(view.normal_cam, np.float64) @ R.T  # [H, W, 3]
@@ -139,8 +143,22 @@ def ground_mask(view: DepthView, valid: np.ndarray, conf: MeshingConfig) -> np.n
         n_world = normals_from_points(pts)
     norm = np.linalg.norm(n_world, axis=-1)
     cos = np.abs(n_world[..., 2]) / np.maximum(norm, 1e-12)
-    flat = (cos >= np.cos(np.deg2rad(conf.ground_normal_deg))) & (norm > 1e-6)
-    return valid & near & flat
+    flat = valid & (cos >= np.cos(np.deg2rad(conf.ground_normal_deg))) & (norm > 1e-6)
+    z0 = view_ground_z(pts[..., 2], flat, conf)
+    return flat & (np.abs(pts[..., 2] - z0) < conf.ground_band_m)
+
+
+def view_ground_z(z: np.ndarray, flat: np.ndarray, conf: MeshingConfig) -> float:
+    """Ground height seen by one view: a low percentile of flat pixels near ground_z_m.
+
+    The ground is the lowest large flat surface, so the 30th percentile leans away from
+    raised flat things (benches, box tops) that share the search window."""
+    if conf.ground_adapt_m <= 0:
+        return conf.ground_z_m
+    cand = z[flat & (np.abs(z - conf.ground_z_m) < conf.ground_adapt_m)]
+    if cand.size < conf.ground_adapt_min_pixels:
+        return conf.ground_z_m
+    return float(np.percentile(cand, 30))
 
 
 def normals_from_points(pts: np.ndarray) -> np.ndarray:

@@ -12,8 +12,9 @@ Steps:
 1. ground evidence: ground-classified depth pixels back-projected to world (meshing), and
    a corridor of `path_radius_m` around the camera path (someone walked there), rasterised;
    gaps closed with a disc of `close_radius_m`.
-2. obstacles: collision-mesh surface points with z in [obstacle_min_z_m, obstacle_max_z_m]
-   (ground plane z = 0) rasterised, inflated by the robot radius (Euclidean distance
+2. obstacles: collision-mesh surface points with a height in [obstacle_min_z_m,
+   obstacle_max_z_m] above the local ground (mean z of the ground points in the cell, nearest
+   seen cell elsewhere; z = 0 without ground points) rasterised, inflated by the robot radius (Euclidean distance
    transform). Defaults: robot radius 0.3 m (a sidewalk delivery robot about 0.6 m wide);
    0.1 m is the tallest step treated as ground roughness; above 1.8 m (awnings, canopies)
    does not block a ground robot.
@@ -170,14 +171,40 @@ def ground_evidence(ground_points: np.ndarray, path_xy: np.ndarray, origin: np.n
     return seen
 
 
-def obstacle_cells(collision_mesh: Optional[MeshLike], origin: np.ndarray,
-                   shape: tuple[int, int], conf: WalkableConfig) -> np.ndarray:
-    """Cells [H, W] bool under collision geometry within the obstacle height band."""
+def _cells(xy: np.ndarray, origin: np.ndarray, shape: tuple[int, int], res: float
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) of points xy [N, 2], clipped into the grid."""
+    c = np.clip(np.floor((xy[:, 0] - origin[0]) / res).astype(np.int64), 0, shape[1] - 1)
+    r = np.clip(np.floor((xy[:, 1] - origin[1]) / res).astype(np.int64), 0, shape[0] - 1)
+    return r, c
+
+
+def ground_height(ground_points: np.ndarray, origin: np.ndarray, shape: tuple[int, int],
+                  conf: WalkableConfig) -> np.ndarray:
+    """Local ground z [H, W]: mean z of the ground points per cell, nearest cell elsewhere
+    (ground_z_m when there are no ground points)."""
+    if len(ground_points) == 0:
+        return np.full(shape, conf.ground_z_m)
+    r, c = _cells(ground_points[:, :2], origin, shape, conf.resolution_m)
+    flat = r * shape[1] + c
+    n = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
+    zsum = np.bincount(flat, ground_points[:, 2], minlength=shape[0] * shape[1]).reshape(shape)
+    z = np.where(n > 0, zsum / np.maximum(n, 1), 0.0)
+    _, (nr, nc) = ndimage.distance_transform_edt(n == 0, return_indices=True)
+    return z[nr, nc]
+
+
+def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
+                   origin: np.ndarray, conf: WalkableConfig) -> np.ndarray:
+    """Cells [H, W] bool under collision geometry within the obstacle height band above the
+    local ground height ground_z [H, W]."""
+    shape = ground_z.shape
     if collision_mesh is None:
         return np.zeros(shape, bool)
     v, f = mesh_arrays(collision_mesh)
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
-    z = pts[:, 2] - conf.ground_z_m
+    r, c = _cells(pts[:, :2], origin, shape, conf.resolution_m)
+    z = pts[:, 2] - ground_z[r, c]
     band = (z >= conf.obstacle_min_z_m) & (z <= conf.obstacle_max_z_m)
     return _rasterise(pts[band, :2], origin, shape, conf.resolution_m)
 
@@ -225,7 +252,8 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
     res = conf.resolution_m
     origin, shape = _grid_frame(np.concatenate([gp[:, :2], path[:, :2]]), conf)
     seen = ground_evidence(gp, path[:, :2], origin, shape, conf)
-    blocked = inflate(obstacle_cells(collision_mesh, origin, shape, conf), conf.robot_radius_m, res)
+    gz = ground_height(gp, origin, shape, conf)
+    blocked = inflate(obstacle_cells(collision_mesh, gz, origin, conf), conf.robot_radius_m, res)
     free = seen & ~blocked
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
