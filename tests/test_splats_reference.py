@@ -264,3 +264,45 @@ def test_result_is_independent_of_tile_size():
     for other in results[1:]:
         for a, b in zip(results[0], other):
             assert torch.allclose(a, b, atol=1e-12, rtol=1e-10)
+
+
+# ---- model and camera ------------------------------------------------------------
+
+def test_from_points_scales_colours_and_opacity():
+    xyz = [[0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3], [10, 10, 10]]
+    rgb = [[255, 0, 0], [0, 255, 0], [0, 0, 255], [128, 128, 128], [0, 0, 0]]
+    import numpy as np
+    m = GaussianModel.from_points(np.array(xyz), np.array(rgb, dtype=np.uint8), sh_degree=2)
+    assert m.num == 5 and m.sh_degree == 2 and m.sh.shape == (5, 9, 3)
+    assert torch.allclose(m.opacities, torch.full((5,), 0.1))
+    assert torch.allclose(m.scales[0], torch.full((3,), 2.0))  # mean of 1, 2, 3
+    from vid2sim.splats.sh import sh0_to_rgb
+    assert torch.allclose(sh0_to_rgb(m.sh[:, 0]), torch.tensor(rgb, dtype=torch.float32) / 255)
+    assert torch.all(m.sh[:, 1:] == 0)
+    sub = GaussianModel.cat([m.index(m.means[:, 0] > 0.5), m.index(torch.tensor([0]))])
+    assert sub.num == 3 and torch.equal(sub.means[-1], m.means[0])
+    assert m.to(torch.float64).means.dtype == torch.float64
+    m.requires_grad_()
+    assert all(t.requires_grad for t in m.params().values())
+    assert not any(t.requires_grad for t in m.detach().params().values())
+    with pytest.raises(ValueError, match="rgb"):
+        GaussianModel.from_points(np.zeros((3, 3)), np.zeros((2, 3)))
+
+
+def test_camera_pose_helpers():
+    from vid2sim.splats.camera import look_at
+    w2c = look_at([1.0, 2.0, 3.0], [1.0, 7.0, 3.0], up=[0, 0, 1])
+    cam = Camera(100, 100, 64, 36, 128, 72, w2c)
+    assert cam.center.tolist() == pytest.approx([1, 2, 3])
+    # a point ahead on the view axis projects to the principal point at its distance
+    p = cam.world_to_cam @ torch.tensor([1.0, 6.0, 3.0, 1.0], dtype=D)
+    assert p[:3].tolist() == pytest.approx([0, 0, 4])
+    # world up maps to image up (negative camera y)
+    up = cam.world_to_cam[:3, :3] @ torch.tensor([0, 0, 1.0], dtype=D)
+    assert up.tolist() == pytest.approx([0, -1, 0])
+    again = Camera.from_cam_to_world(cam.K, cam.cam_to_world, 128, 72)
+    assert torch.allclose(again.world_to_cam, cam.world_to_cam)
+    half = cam.scaled(0.5)
+    assert (half.width, half.height, half.fx, half.cx) == (64, 36, 50.0, 32.0)
+    # same point, same normalised image position at half resolution
+    assert torch.equal(half.world_to_cam, cam.world_to_cam)
