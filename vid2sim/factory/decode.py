@@ -19,8 +19,8 @@ Filters (defaults, see DecodeConf):
   duplicate  median optical-flow magnitude to the last KEPT frame below 0.6 px (at the
              output size): a frame that adds no motion. If >= 90 % of frames are duplicates
              the clip fails with `static_camera`.
-Input errors (StageError "decode", nothing written): not_a_video, truncated, no_video_stream,
-zero_frames, empty_window, too_few_frames (< min_frames sampled or kept), all_black,
+Input errors (StageError "decode", nothing written): not_a_video, truncated, zero_frames,
+not_an_image, empty_window, too_few_frames (< min_frames sampled or kept), all_black,
 static_camera, plus the source reasons of sources.py.
 """
 
@@ -103,10 +103,11 @@ def sample_video(path: Path, conf: DecodeConf, window: Optional[tuple[float, flo
             samples.append(Sample(idx, t, _resize(img, conf.max_side)))
             while next_t <= t + half:
                 next_t += step
-    if end is None or (info.duration and end >= info.duration):
-        check_complete(path, info, idx + 1 if decoded else 0)
     if not samples:
-        raise StageError(STAGE, "empty_window", f"{path}: no frame in window {window}")
+        raise StageError(STAGE, "empty_window", f"{path}: no frame in window {window} "
+                         f"(duration {info.duration:.2f} s)")
+    if end is None or (info.duration and end >= info.duration):
+        check_complete(path, info, samples[-1].source_frame + 1)
     facts = {"source_fps": info.fps, "source_size": [info.width, info.height], "codec": info.codec,
              "source_frames": info.n_frames, "duration": info.duration, "decoded_in_window": decoded}
     return samples, facts
@@ -234,7 +235,7 @@ def _write(samples: list[Sample], conf: DecodeConf, out_dir: Path) -> dict[int, 
     images.mkdir()
     kept = [i for i, s in enumerate(samples) if s.reason is None]
     jobs = [(samples[i].image, str(images / f"{k:06d}.jpg")) for k, i in enumerate(kept)]
-    if conf.workers <= 1 or len(jobs) < 8:
+    if conf.workers <= 1 or len(jobs) < 32:  # a process pool costs ~1-2 s to start
         _init_worker(conf.faces, conf.jpeg_quality)
         counts = [_blur_and_write(j) for j in jobs]
     else:

@@ -4,8 +4,8 @@ Failure reasons (StageError, stage "decode"):
   not_a_video     the file has no known container signature and cannot be opened
   truncated       a container signature is there but opening/decoding breaks, or far fewer
                   frames decode than the container declares (a cut-off file)
-  no_video_stream the container has no video track
-  zero_frames     a video track that decodes to no frame
+  zero_frames     the container holds no video frame (no video track, as muxers write
+                  for an empty recording, or a track that decodes to nothing)
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ def _open(path: Path):
         raise StageError(STAGE, reason, f"{path}: {type(e).__name__}: {e}") from None
     if not container.streams.video:
         container.close()
-        raise StageError(STAGE, "no_video_stream", f"{path}: the container has no video track")
+        raise StageError(STAGE, "zero_frames", f"{path}: the container has no video track (no frame)")
     return container
 
 
