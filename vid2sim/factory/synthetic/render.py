@@ -96,6 +96,13 @@ class StreetRenderer:
         self.d_cam = (d / np.linalg.norm(d, axis=1, keepdims=True)).astype(np.float32)  # [HW, 3]
         self.mat, self.col, self.inst = scene.face_material, scene.face_color, scene.face_instance
 
+    def primitive_ids(self, cam_to_world: np.ndarray) -> np.ndarray:
+        """Face id hit by each pixel [H * W] (int64; >= n_faces where the ray misses)."""
+        R, o = cam_to_world[:3, :3].astype(np.float32), cam_to_world[:3, 3].astype(np.float32)
+        d = vecmat(self.d_cam, R.T)
+        rays = np.ascontiguousarray(np.concatenate([np.broadcast_to(o, d.shape), d], 1))
+        return self.rc.cast_rays(o3d.core.Tensor.from_numpy(rays))["primitive_ids"].numpy().astype(np.int64)
+
     def render(self, cam_to_world: np.ndarray) -> dict[str, np.ndarray]:
         """rgb [H, W, 3] uint8, depth [H, W] float32 z-depth (0 = miss), normal [H, W, 3] camera frame."""
         H, W = self.conf.height, self.conf.width
