@@ -106,5 +106,39 @@ def latest_rows(table: pa.Table) -> pa.Table:
     return table.take(order.to_numpy()[first])
 
 
+def _artifact_lists(col: pa.ChunkedArray) -> list[tuple[Artifact, ...]]:
+    """list<struct<name, sha256, size>> column -> per-row artifact tuples (column-wise, fast)."""
+    out: list[tuple[Artifact, ...]] = []
+    for chunk in col.chunks:
+        offsets = chunk.offsets.to_numpy()
+        values = chunk.values
+        arts = [_fast_new(Artifact, {"name": n, "sha256": h, "size": z}) for n, h, z in zip(
+            values.field("name").to_pylist(), values.field("sha256").to_pylist(), values.field("size").to_pylist())]
+        out.extend(tuple(arts[offsets[i]:offsets[i + 1]]) for i in range(len(chunk)))
+    return out
+
+
+def _fast_new(cls, fields: dict):
+    """Build a frozen dataclass from already-typed fields without per-field __setattr__."""
+    obj = object.__new__(cls)
+    obj.__dict__.update(fields)
+    return obj
+
+
 def records(table: pa.Table) -> list[SceneRecord]:
-    return [SceneRecord.from_row(r) for r in table.to_pylist()]
+    """Manifest rows -> SceneRecords, converting column by column (10k rows in well under a second)."""
+    from datetime import timedelta, timezone
+
+    if table.num_rows == 0:
+        return []
+    cols = {c: table.column(c).to_pylist() for c in table.column_names
+            if c not in ("created_at", "artifacts", "metrics", "bounds", "mesh_bounds", "tags")}
+    epoch = datetime(1970, 1, 1, tzinfo=timezone.utc)
+    cols["created_at"] = [epoch + timedelta(microseconds=us) for us in
+                          table.column("created_at").cast(pa.int64()).to_pylist()]
+    cols["metrics"] = [json.loads(m or "{}") for m in table.column("metrics").to_pylist()]
+    for c in ("bounds", "mesh_bounds", "tags"):
+        cols[c] = [tuple(v or ()) for v in table.column(c).to_pylist()]
+    cols["artifacts"] = _artifact_lists(table.column("artifacts"))
+    names = [f for f in SceneRecord.__dataclass_fields__]
+    return [_fast_new(SceneRecord, dict(zip(names, vals))) for vals in zip(*(cols[n] for n in names))]

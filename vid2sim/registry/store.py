@@ -77,6 +77,7 @@ class Registry:
             self.blobs = ArrowBlobStore(fs, f"{base.rstrip('/')}/blobs")
             table_uri = f"{self.root}/manifests"
         self.manifest = ManifestTable(table_uri, storage_options)
+        self._latest_cache: Optional[tuple[int, list[SceneRecord]]] = None
 
     def __repr__(self) -> str:
         return f"Registry({self.root!r})"
@@ -92,9 +93,18 @@ class Registry:
 
     def list(self, as_of: AsOf = None, include_deprecated: bool = False) -> list[SceneRecord]:
         """Latest version of every scene (optionally at an older registry version/time)."""
-        _, table = self._rows(as_of)
-        recs = records(latest_rows(table))
+        recs = self._latest(as_of)
         return recs if include_deprecated else [r for r in recs if r.status == ACTIVE]
+
+    def _latest(self, as_of: AsOf = None) -> list[SceneRecord]:
+        """Latest record of every scene (cached per registry version for the live table)."""
+        v, table = self._rows(as_of)
+        if as_of is None and self._latest_cache is not None and self._latest_cache[0] == v:
+            return list(self._latest_cache[1])
+        recs = records(latest_rows(table))
+        if as_of is None:
+            self._latest_cache = (v, recs)
+        return list(recs)
 
     def show(self, scene_id: str, version: Optional[int] = None, as_of: AsOf = None) -> SceneRecord:
         hist = self.history(scene_id, as_of=as_of)
@@ -146,8 +156,8 @@ class Registry:
         conf = SplitConfig(seed=seed, test_fraction=test_fraction,
                            test_groups=tuple(test_groups) if test_groups is not None else None,
                            train_sizes=tuple(train_sizes), tags=tuple(tags), min_metrics=dict(min_metrics or {}))
-        v, table = self._rows(as_of)
-        return make_split(records(latest_rows(table)), conf, v)
+        v = self._rows(as_of)[0]
+        return make_split(self._latest(as_of), conf, v)
 
     # ------------------------------------------------------------------ add
     def _store_blobs(self, info: BundleInfo) -> list[Artifact]:

@@ -1,0 +1,137 @@
+"""Registry benchmark: commit latency, and list / split / query latency with 10,000 scene rows.
+
+    .venv/bin/python benchmarks/registry.py [--adds 40] [--rows 10000] [--batch 500] [--root DIR]
+
+Steps: (1) N single `add`s of small real bundles (300 Gaussians) into an empty registry;
+(2) bulk-create ROWS scene rows with batched appends (rows reuse real blobs, so verify holds);
+(3) list / split / query latency over ROWS scenes, cold (fresh handle) and warm;
+(4) single-commit latency (tag, add) with ROWS scenes present, before and after `compact()`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+
+
+def hardware() -> str:
+    cpu = platform.processor() or "cpu"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    import deltalake
+    import duckdb
+    import pyarrow
+
+    return (f"{cpu}, {os.cpu_count()} cores, {mem:.0f} GiB RAM, {platform.system()} {platform.release()}, "
+            f"python {platform.python_version()}, deltalake {deltalake.__version__}, "
+            f"pyarrow {pyarrow.__version__}, duckdb {duckdb.__version__}")
+
+
+def stats(xs: list[float]) -> str:
+    ms = np.array(xs) * 1e3
+    return f"median {np.median(ms):8.1f} ms  p95 {np.percentile(ms, 95):8.1f} ms  (n={len(ms)})"
+
+
+def timed(fn, n: int) -> list[float]:
+    out = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        out.append(time.perf_counter() - t)
+    return out
+
+
+def bulk_rows(template, n: int, start: int) -> list[dict]:
+    rows = []
+    for i in range(start, start + n):
+        rec = template.evolve(scene_id=f"bulk-{i:06d}", source_group=f"video-{i % 997:04d}",
+                              metrics={"psnr": 18.0 + (i % 13)}, tags=("night",) if i % 4 == 0 else ())
+        rows.append(rec.to_row())
+    return rows
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--adds", type=int, default=40)
+    ap.add_argument("--rows", type=int, default=10_000)
+    ap.add_argument("--batch", type=int, default=500)
+    ap.add_argument("--root", default=None, help="registry folder (default: a temp dir, removed after)")
+    args = ap.parse_args()
+    from registry_fixtures import make_bundle
+
+    from vid2sim.registry import Registry
+
+    tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-"))
+    root = Path(args.root) if args.root else tmp / "reg"
+    print(f"hardware: {hardware()}")
+    print(f"command:  {' '.join([Path(sys.executable).name, *sys.argv])}")
+    try:
+        bundles = [make_bundle(tmp / f"b{i}", f"bench-{i:04d}", group=f"g{i % 7}", seed=i) for i in range(args.adds + 20)]
+        reg = Registry(root)
+        adds = [b for b in bundles[:args.adds]]
+        lat = []
+        for b in adds:
+            t = time.perf_counter()
+            reg.add(b)
+            lat.append(time.perf_counter() - t)
+        print(f"add (empty registry -> {args.adds} scenes):      {stats(lat)}")
+        print(f"re-add identical (no-op):                {stats(timed(lambda: reg.add(adds[0]), 10))}")
+
+        template = reg.show(f"bench-{0:04d}")
+        t = time.perf_counter()
+        made = 0
+        while made < args.rows - args.adds:
+            k = min(args.batch, args.rows - args.adds - made)
+            reg.manifest.append_bulk(bulk_rows(template, k, made))
+            made += k
+        print(f"bulk-create {made} rows in batches of {args.batch}: {time.perf_counter() - t:.1f} s "
+              f"(registry version {reg.version})")
+
+        def cold_list():
+            assert len(Registry(root).list()) >= args.rows
+
+        names = iter(range(10**6))
+        more = iter(bundles[args.adds:])
+        for label in ("", " (after compact)"):
+            print(f"-- {args.rows} scenes{label}")
+            print(f"list cold (fresh handle):                {stats(timed(cold_list, 5))}")
+            print(f"list warm:                               {stats(timed(lambda: reg.list(), 5))}")
+            print(f"split (seed, 20% test, train 1/5/15/100): "
+                  f"{stats(timed(lambda: reg.split(seed=1, train_sizes=(1, 5, 15, 100)), 5))}")
+            print(f"split with tag + psnr filter:            "
+                  f"{stats(timed(lambda: reg.split(seed=1, tags=('night',), min_metrics={'psnr': 20}), 5))}")
+            print(f"query (count latest by group):           "
+                  f"{stats(timed(lambda: reg.query('select source_group, count(*) from latest group by 1'), 5))}")
+            print(f"tag commit:                              "
+                  f"{stats(timed(lambda: reg.tag('bulk-000001', f't{next(names)}'), 10))}")
+            print(f"add commit:                              {stats(timed(lambda: reg.add(next(more)), 10))}")
+            if not label:
+                t = time.perf_counter()
+                reg.compact()
+                print(f"compact(): {time.perf_counter() - t:.1f} s")
+        t = time.perf_counter()
+        problems = reg.verify()
+        print(f"verify ({len(reg.referenced())} blobs): {time.perf_counter() - t:.2f} s, problems: {len(problems)}")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
