@@ -1,0 +1,178 @@
+"""Reconstruction configs (nerfstudio style): one dataclass per component and named presets.
+
+Every run saves its `ReconConfig` as `config.json` beside the result (see trainer.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional
+
+from vid2sim.versioning import to_jsonable
+
+
+@dataclass
+class DepthPriorConfig:
+    """Which depth prior supervises the geometry losses.
+
+    kind: "mvs" (default, no weights: plane-sweep stereo over neighbouring posed frames),
+          "depth_anything" (Depth-Anything-V2 via transformers from `checkpoint`, a local path),
+          "none" (plain 3DGS; geometry losses that need a prior are off).
+    """
+
+    kind: str = "mvs"
+    # --- mvs (plane sweep with NCC) ---
+    neighbours: int = 4  # nearest frames (by index) on each side are candidates; best `neighbours` used
+    num_planes: int = 48  # inverse-depth hypotheses between the near and far bound
+    ncc_window: int = 7  # NCC window (pixels, odd)
+    min_ncc: float = 0.5  # confidence threshold on the best matching score
+    near_far_percentiles: tuple = (2.0, 98.0)  # depth range from sparse points seen by the frame
+    max_width: int = 256  # plane sweep runs at most at this width (then upsampled)
+    # --- depth_anything ---
+    checkpoint: Optional[str] = None  # local folder with a transformers Depth-Anything-V2 model
+    device: str = "cpu"
+
+
+@dataclass
+class DensifyConfig:
+    """AbsGS densification (3DGS schedule; thresholds in 3DGS NDC units)."""
+
+    start_iter: int = 500
+    stop_iter: int = 15_000
+    every: int = 100
+    grad_threshold: float = 0.0002  # clone: mean plain 2D gradient norm
+    absgrad_threshold: float = 0.0008  # split: mean absolute (AbsGS) 2D gradient norm
+    percent_dense: float = 0.01  # clone if max scale <= this * extent, else split
+    opacity_reset_every: int = 3000
+    min_opacity: float = 0.005
+    max_screen_radius: float = 20.0  # pixels, at the training resolution (after first reset)
+    max_world_scale: float = 0.1  # fraction of scene extent
+    max_gaussians: int = 1_000_000
+
+
+@dataclass
+class LossConfig:
+    """Loss weights (paper eq. 5: all geometry weights 1) and options."""
+
+    lambda_dssim: float = 0.2
+    w_depth: float = 1.0
+    w_normal: float = 1.0
+    w_geo: float = 1.0
+    w_scale: float = 1.0
+    geometry: bool = True  # depth / normal / geo / scale losses on
+    geometry_from_iter: int = 500  # paper: from iteration 500 to the end
+    ncc_patch: int = 8  # K (patch K x K)
+    ncc_stride: int = 4  # patches every `stride` pixels (overlapping when < K)
+    normal_pca_window: int = 5  # PCA neighbourhood for prior normals (pixels, odd)
+
+
+@dataclass
+class LRConfig:
+    """3DGS learning rates; means are scaled by the scene extent and decay exponentially."""
+
+    means: float = 1.6e-4
+    means_final: float = 1.6e-6
+    sh0: float = 2.5e-3
+    shN: float = 2.5e-3 / 20
+    opacity: float = 0.05
+    scales: float = 5e-3
+    quats: float = 1e-3
+
+
+@dataclass
+class ReconConfig:
+    """Geometry-consistent Gaussian-splat reconstruction of one PosedClip."""
+
+    preset: str = "fast"
+    iterations: int = 2000
+    max_width: int = 200  # training/eval images are downscaled to at most this width
+    sh_degree: int = 3
+    sh_increase_every: int = 1000
+    background: tuple = (0.0, 0.0, 0.0)
+    backend: str = "auto"  # renderer backend: "auto" | "torch" | "cpu" | "cuda"
+    max_init_points: int = 100_000
+    seed: int = 0
+    checkpoint_every: int = 500
+    eval_max_frames: int = 0  # 0 = every held-out frame
+    lr: LRConfig = field(default_factory=LRConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    densify: DensifyConfig = field(default_factory=DensifyConfig)
+    prior: DepthPriorConfig = field(default_factory=DepthPriorConfig)
+
+    @property
+    def uses_geometry(self) -> bool:
+        return self.loss.geometry
+
+    def to_dict(self) -> dict:
+        return to_jsonable(self)
+
+    def save(self, path: Path) -> Path:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+        return Path(path)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "ReconConfig":
+        return _from_dict(cls, data)
+
+    @classmethod
+    def load(cls, path: Path) -> "ReconConfig":
+        return cls.from_dict(json.loads(Path(path).read_text()))
+
+
+def _from_dict(cls: Any, data: dict) -> Any:
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        value = data[f.name]
+        sub = f.default_factory if f.default_factory is not dataclasses.MISSING else None  # type: ignore[misc]
+        if sub is not None and dataclasses.is_dataclass(sub) and isinstance(value, dict):
+            value = _from_dict(sub, value)
+        elif isinstance(f.default, tuple) and isinstance(value, list):
+            value = tuple(value)
+        kwargs[f.name] = value
+    return cls(**kwargs)
+
+
+def fast() -> ReconConfig:
+    """Minutes on 2 CPU cores: ~1/4-1/6 resolution, 2k iterations, 150k Gaussian cap."""
+    return ReconConfig(
+        preset="fast", iterations=2000, max_width=160, sh_degree=2, sh_increase_every=500,
+        checkpoint_every=500,
+        lr=LRConfig(means=1.6e-4 * 2, means_final=1.6e-6 * 2),
+        loss=LossConfig(geometry_from_iter=300, ncc_patch=8, ncc_stride=4),
+        densify=DensifyConfig(start_iter=300, stop_iter=1500, every=100, opacity_reset_every=1000,
+                              max_gaussians=150_000),
+        prior=DepthPriorConfig(kind="mvs", num_planes=48, max_width=160),
+    )
+
+
+def paper() -> ReconConfig:
+    """Paper: 30k iterations, 3DGS hyper-parameters, AbsGS, geometry losses from iteration 500."""
+    return ReconConfig(
+        preset="paper", iterations=30_000, max_width=1600, sh_degree=3, sh_increase_every=1000,
+        checkpoint_every=5000,
+        loss=LossConfig(geometry_from_iter=500),
+        densify=DensifyConfig(start_iter=500, stop_iter=15_000, every=100, opacity_reset_every=3000,
+                              max_gaussians=3_000_000),
+        prior=DepthPriorConfig(kind="mvs", num_planes=96, max_width=640),
+    )
+
+
+PRESETS = {"fast": fast, "paper": paper}
+
+
+def preset(name: str, **overrides: Any) -> ReconConfig:
+    """A named preset; `overrides` replace top-level fields."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown reconstruction preset {name!r}; choose one of {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[name](), **overrides)
+
+
+def baseline(conf: ReconConfig) -> ReconConfig:
+    """Plain 3DGS at the same budget: no depth prior, no geometry losses."""
+    return dataclasses.replace(conf, loss=dataclasses.replace(conf.loss, geometry=False),
+                               prior=dataclasses.replace(conf.prior, kind="none"))

@@ -1,0 +1,213 @@
+"""Reconstruction losses (paper Sec. 3.1): pure functions of tensors, images as [H, W, C].
+
+rgb:    (1 - l) L1 + l (1 - SSIM), l = 0.2, dynamic pixels (mask 0) excluded.
+depth:  patch NCC between rendered and prior depth, mean and std taken per patch.
+normal: 1 - cosine between rendered normals and prior normals (PCA on back-projected points).
+geo:    neighbour-normal agreement (right and bottom) weighted by 1 - |grad D|.
+scale:  mean over Gaussians of the smallest scale (flat, 2DGS-like splats).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Optional
+
+import torch
+import torch.nn.functional as F
+
+
+# ----------------------------------------------------------------------------- SSIM
+
+def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Normalised 2D Gaussian window [size, size]."""
+    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
+    g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
+    g = g / g.sum()
+    return g[:, None] * g[None, :]
+
+
+def ssim_map(img1: torch.Tensor, img2: torch.Tensor, window: int = 11, sigma: float = 1.5,
+             same: bool = True) -> torch.Tensor:
+    """Per-pixel SSIM (Wang et al. 2004, C1=0.01^2, C2=0.03^2, data range 1), channel mean.
+
+    img1, img2 [H, W, C] in [0, 1] -> [H, W] (same=True, zero padding as 3DGS)
+    or [H - window + 1, W - window + 1] (same=False, the 'valid' region as skimage).
+    """
+    c = img1.shape[-1]
+    x = img1.permute(2, 0, 1)[None]  # [1, C, H, W]
+    y = img2.permute(2, 0, 1)[None]
+    w = gaussian_window(window, sigma).to(x)[None, None].expand(c, 1, window, window)
+    pad = window // 2 if same else 0
+
+    def filt(t: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(t, w, padding=pad, groups=c)
+
+    mu_x, mu_y = filt(x), filt(y)
+    sxx = filt(x * x) - mu_x ** 2
+    syy = filt(y * y) - mu_y ** 2
+    sxy = filt(x * y) - mu_x * mu_y
+    c1, c2 = 0.01 ** 2, 0.03 ** 2
+    num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
+    den = (mu_x ** 2 + mu_y ** 2 + c1) * (sxx + syy + c2)
+    return (num / den)[0].mean(0)  # [H', W']
+
+
+def _masked_mean(values: torch.Tensor, mask: Optional[torch.Tensor]) -> torch.Tensor:
+    """values [H, W, ...], mask [H, W] (1 keep, 0 drop) -> scalar."""
+    if mask is None:
+        return values.mean()
+    m = mask.to(values.dtype)
+    while m.dim() < values.dim():
+        m = m[..., None]
+    m = m.expand_as(values)
+    return (values * m).sum() / m.sum().clamp_min(1.0)
+
+
+def rgb_loss(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None,
+             lambda_dssim: float = 0.2) -> torch.Tensor:
+    """(1 - l) * L1 + l * (1 - SSIM) over static pixels.
+
+    pred, gt [H, W, 3]; mask [H, W] with 1 = static (used), 0 = dynamic (excluded).
+    """
+    l1 = _masked_mean((pred - gt).abs(), mask)
+    dssim = 1.0 - _masked_mean(ssim_map(pred, gt), mask)
+    return (1.0 - lambda_dssim) * l1 + lambda_dssim * dssim
+
+
+# ----------------------------------------------------------------------------- depth NCC
+
+def ncc_depth_loss(rendered: torch.Tensor, prior: torch.Tensor, valid: Optional[torch.Tensor] = None,
+                   patch: int = 8, stride: int = 4, min_valid: float = 0.8,
+                   eps: float = 1e-6) -> torch.Tensor:
+    """Patch NCC loss  1 - 1/|P| sum_p 1/K^2 sum_k D^'_pk D'_pk / (sigma^_p sigma_p).
+
+    rendered, prior [H, W]; valid [H, W] (bool/0-1; None = all valid).
+    Means and (population) standard deviations are taken per K x K patch over its valid
+    pixels, so each patch score is its Pearson correlation in [-1, 1]. (The paper's sum over
+    k must carry this 1/K^2 for the loss to stay in [0, 2].) Patches with fewer than
+    `min_valid` valid pixels, or with a flat prior, are left out. Returns a scalar in [0, 2]
+    (0 when no patch qualifies).
+    """
+    h, w = rendered.shape
+    if valid is None:
+        valid = torch.ones_like(rendered, dtype=torch.bool)
+    unfold = lambda t: F.unfold(t.reshape(1, 1, h, w).to(rendered.dtype), patch, stride=stride)[0]  # [K^2, P]
+    d_hat, d, m = unfold(rendered), unfold(prior), unfold(valid.float())
+    n = m.sum(0)  # [P]
+    n_safe = n.clamp_min(1.0)
+    mu_hat = (m * d_hat).sum(0) / n_safe
+    mu = (m * d).sum(0) / n_safe
+    c_hat = (d_hat - mu_hat) * m  # mean-centred, [K^2, P]
+    c = (d - mu) * m
+    sigma_hat = torch.sqrt((c_hat ** 2).sum(0) / n_safe + eps)
+    sigma = torch.sqrt((c ** 2).sum(0) / n_safe + eps)
+    ncc = (c_hat * c).sum(0) / n_safe / (sigma_hat * sigma)  # [P]
+    prior_std = torch.sqrt((c ** 2).sum(0) / n_safe)
+    keep = (n >= min_valid * patch * patch) & (prior_std > 1e-4 * mu.abs().clamp_min(1e-6))
+    if not bool(keep.any()):
+        return rendered.sum() * 0.0
+    return 1.0 - ncc[keep].mean()
+
+
+# ----------------------------------------------------------------------------- normals
+
+def backproject(depth: torch.Tensor, K: torch.Tensor) -> torch.Tensor:
+    """depth [H, W] (camera z), K [3, 3] -> camera-frame points [H, W, 3] (OpenCV axes,
+    pixel centres at j + 0.5, i + 0.5)."""
+    h, w = depth.shape
+    i, j = torch.meshgrid(torch.arange(h, dtype=depth.dtype), torch.arange(w, dtype=depth.dtype),
+                          indexing="ij")
+    x = (j + 0.5 - K[0, 2]) / K[0, 0]
+    y = (i + 0.5 - K[1, 2]) / K[1, 1]
+    return torch.stack([x * depth, y * depth, depth], -1)
+
+
+def normals_from_depth_pca(depth: torch.Tensor, K: torch.Tensor, window: int = 5,
+                           valid: Optional[torch.Tensor] = None, rel_tol: float = 0.15,
+                           ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Pseudo-GT normals by PCA on back-projected points (paper), camera frame.
+
+    For every pixel the points of its `window` x `window` neighbourhood whose depth is within
+    `rel_tol` (relative) of the centre's are taken; the normal is the eigenvector of their
+    covariance with the smallest eigenvalue, flipped to face the camera.
+    depth [H, W], K [3, 3], valid [H, W] -> normals [H, W, 3] (unit; 0 where invalid), ok [H, W] bool.
+    """
+    h, w = depth.shape
+    depth = depth.to(torch.float64)
+    if valid is None:
+        valid = depth > 0
+    valid = valid & (depth > 0)
+    pts = backproject(depth, K.to(torch.float64))  # [H, W, 3]
+    pad = window // 2
+    unf = lambda t: F.unfold(t.permute(2, 0, 1)[None], window, padding=pad)[0]  # [C*k2, HW]
+    k2 = window * window
+    nb = unf(pts).reshape(3, k2, h * w)  # [3, k2, HW]
+    nb_d = unf(depth[..., None]).reshape(k2, h * w)
+    nb_ok = unf(valid[..., None].to(torch.float64)).reshape(k2, h * w) > 0
+    centre = depth.reshape(-1)
+    wgt = (nb_ok & ((nb_d - centre).abs() <= rel_tol * centre)).to(torch.float64)  # [k2, HW]
+    cnt = wgt.sum(0)  # [HW]
+    mean = (nb * wgt).sum(1) / cnt.clamp_min(1)  # [3, HW]
+    diff = (nb - mean[:, None]) * wgt.sqrt()  # [3, k2, HW]
+    cov = torch.einsum("akp,bkp->pab", diff, diff) / cnt.clamp_min(1)[:, None, None]  # [HW, 3, 3]
+    cov = cov + torch.eye(3, dtype=cov.dtype) * 1e-12
+    _, vecs = torch.linalg.eigh(cov)
+    n = vecs[:, :, 0]  # [HW, 3] smallest-eigenvalue direction
+    flip = (n * pts.reshape(-1, 3)).sum(-1) > 0
+    n = torch.where(flip[:, None], -n, n)
+    ok = valid.reshape(-1) & (cnt >= max(3, k2 // 2))
+    n = torch.where(ok[:, None], n, torch.zeros_like(n))
+    return n.reshape(h, w, 3).float(), ok.reshape(h, w)
+
+
+def normal_loss(rendered: torch.Tensor, prior: torch.Tensor,
+                valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """1 - mean cosine(rendered, prior) over valid pixels.
+
+    rendered, prior [H, W, 3] (camera frame, any length); valid [H, W].
+    """
+    cos = F.cosine_similarity(rendered, prior, dim=-1, eps=1e-8)  # [H, W]
+    return 1.0 - _masked_mean(cos, valid)
+
+
+def depth_edge_weights(depth: torch.Tensor) -> torch.Tensor:
+    """w_ij = clamp(1 - ||(grad_x D, grad_y D)||, 0, 1) with forward differences.
+
+    depth [H, W] -> [H-1, W-1] (pixels that have both a right and a bottom neighbour).
+    """
+    gx = depth[:-1, 1:] - depth[:-1, :-1]
+    gy = depth[1:, :-1] - depth[:-1, :-1]
+    return (1.0 - torch.sqrt(gx ** 2 + gy ** 2)).clamp(0.0, 1.0)
+
+
+def geo_consistency_loss(normals: torch.Tensor, depth: torch.Tensor,
+                         valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """Geometry-consistency loss: sum w (1 - N_ij . N_nb) / sum w over right and bottom nb.
+
+    normals [H, W, 3] (rendered, unit), depth [H, W] the map the weights come from (the trainer
+    passes log prior depth, so |grad D| is the relative depth change and scale-free),
+    valid [H, W]. Each pixel's term is the mean over its right and bottom neighbours.
+    """
+    n = normals[:-1, :-1]
+    dots = 0.5 * ((n * normals[:-1, 1:]).sum(-1) + (n * normals[1:, :-1]).sum(-1))  # [H-1, W-1]
+    w = depth_edge_weights(depth.detach())
+    if valid is not None:
+        v = valid[:-1, :-1] & valid[:-1, 1:] & valid[1:, :-1]
+        w = w * v.to(w.dtype)
+    den = w.sum()
+    if float(den) <= 0:
+        return normals.sum() * 0.0
+    return (w * (1.0 - dots)).sum() / den
+
+
+def scale_loss(log_scales: torch.Tensor) -> torch.Tensor:
+    """Flat-Gaussian loss: 1/N sum_i min(s_i1, s_i2, s_i3). log_scales [N, 3] -> scalar."""
+    if log_scales.shape[0] == 0:
+        return log_scales.sum() * 0.0
+    return torch.exp(log_scales).min(dim=1).values.mean()
+
+
+def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None) -> float:
+    """PSNR in dB for images in [0, 1]; [H, W, C], optional mask [H, W]."""
+    mse = float(_masked_mean((pred.clamp(0, 1) - gt) ** 2, mask))
+    return float("inf") if mse <= 0 else -10.0 * math.log10(mse)

@@ -1,0 +1,281 @@
+"""Stage `reconstruct`: geometry-consistent Gaussian-splat training of one PosedClip.
+
+main(conf, posed_clip_dir, out_dir) -> out_dir
+Reads:  a PosedClip folder (cameras.parquet, points.npz, frame.json, images, masks).
+Writes: out_dir/splats.ply (3DGS PLY), metrics.json (held-out PSNR/SSIM[/LPIPS], depth and
+        normal error when GT depth is known, counts, time), config.json (the ReconConfig),
+        prior.npz (cached depth prior), checkpoint.pt (resume), stage.json (done marker).
+A re-run with the same config and inputs is skipped; a killed run resumes from checkpoint.pt.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+
+from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.recon import losses as L
+from vid2sim.factory.recon.config import ReconConfig
+from vid2sim.factory.recon.data import STAGE, View, load_views, scene_extent
+from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune_only, reset_opacity
+from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
+from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
+from vid2sim.factory.recon.params import SplatParams
+from vid2sim.factory.stage import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.splats.camera import Camera
+from vid2sim.splats.model import GaussianModel
+from vid2sim.splats.ply import write_ply
+from vid2sim.splats.render import render
+from vid2sim.splats.types import RasterSettings
+from vid2sim.versioning import config_hash
+
+CHECKPOINT = "checkpoint.pt"
+
+
+# ----------------------------------------------------------------------------- inputs
+
+def clip_key(posed_clip_dir: Path) -> str:
+    """Content key of a PosedClip folder (its table, points and frame facts)."""
+    d = Path(posed_clip_dir)
+    parts = []
+    for name in ("cameras.parquet", "points.npz", "frame.json"):
+        p = d / name
+        if not p.is_file():
+            raise StageError(STAGE, "bad_posed_clip", f"{d} lacks {name}")
+        parts.append(config_hash(p.read_bytes().hex()))
+    return config_hash(*parts)
+
+
+@dataclass
+class PriorTensors:
+    """Per training view: prior depth [H, W], confidence [H, W], normals [H, W, 3], ok [H, W]."""
+
+    depth: torch.Tensor
+    conf: torch.Tensor
+    normal: torch.Tensor
+    normal_ok: torch.Tensor
+
+
+def load_or_estimate_priors(conf: ReconConfig, views: list[View], points: np.ndarray,
+                            out_dir: Path) -> dict[int, DepthPrior]:
+    """Depth priors, cached in out_dir/prior.npz (keyed by the prior config)."""
+    path = Path(out_dir) / "prior.npz"
+    key = config_hash(conf.prior, conf.max_width)
+    if path.is_file():
+        data = np.load(path)
+        if str(data["key"]) == key:
+            idx = data["index"]
+            return {int(i): DepthPrior(data["depth"][k], data["conf"][k]) for k, i in enumerate(idx)}
+    priors = estimate_priors(conf.prior, views, points)
+    if priors:
+        idx = sorted(priors)
+        tmp = path.with_name("prior.tmp.npz")
+        np.savez_compressed(tmp, key=key, index=np.array(idx),
+                            depth=np.stack([priors[i].depth for i in idx]),
+                            conf=np.stack([priors[i].confidence for i in idx]))
+        os.replace(tmp, path)
+    return priors
+
+
+def prior_tensors(prior: DepthPrior, view: View, window: int) -> PriorTensors:
+    depth = torch.from_numpy(prior.depth).float()
+    ok = torch.from_numpy(prior.confidence) & (depth > 0)
+    normal, normal_ok = L.normals_from_depth_pca(depth, torch.from_numpy(view.K), window, valid=ok)
+    return PriorTensors(depth, ok, normal, normal_ok)
+
+
+def init_model(clip: PosedClip, conf: ReconConfig, rng: np.random.Generator) -> GaussianModel:
+    xyz, rgb = np.asarray(clip.points_xyz), np.asarray(clip.points_rgb)
+    if xyz.shape[0] < 4:
+        raise StageError(STAGE, "no_sparse_points", f"the PosedClip has {xyz.shape[0]} sparse points; need >= 4")
+    if xyz.shape[0] > conf.max_init_points:
+        keep = rng.choice(xyz.shape[0], conf.max_init_points, replace=False)
+        xyz, rgb = xyz[keep], rgb[keep]
+    return GaussianModel.from_points(xyz, rgb, conf.sh_degree)
+
+
+def learning_rates(conf: ReconConfig, extent: float) -> dict[str, float]:
+    lr = conf.lr
+    return {"means": lr.means * extent, "quats": lr.quats, "log_scales": lr.scales,
+            "opacity_logits": lr.opacity, "sh0": lr.sh0, "shN": lr.shN}
+
+
+def means_lr(conf: ReconConfig, extent: float, it: int) -> float:
+    """3DGS exponential decay from lr.means to lr.means_final over the run (x extent)."""
+    t = min(max(it / max(conf.iterations, 1), 0.0), 1.0)
+    return extent * float(np.exp((1 - t) * np.log(conf.lr.means) + t * np.log(conf.lr.means_final)))
+
+
+# ----------------------------------------------------------------------------- one step
+
+def step_loss(conf: ReconConfig, out, gt: torch.Tensor, mask: torch.Tensor,
+              prior: Optional[PriorTensors], log_scales: torch.Tensor, it: int) -> tuple[torch.Tensor, dict]:
+    """Total loss (paper eq. 5 with weights) for one rendered view; returns (loss, parts)."""
+    lc = conf.loss
+    loss = L.rgb_loss(out.rgb, gt, mask, lc.lambda_dssim)
+    parts = {"rgb": float(loss.detach())}
+    if not (lc.geometry and it >= lc.geometry_from_iter):
+        return loss, parts
+    covered = (out.alpha.detach() > 0.5) & mask  # [H, W]
+    if lc.w_scale > 0:
+        l_scale = L.scale_loss(log_scales)
+        loss = loss + lc.w_scale * l_scale
+        parts["scale"] = float(l_scale.detach())
+    if prior is not None:
+        l_depth = L.ncc_depth_loss(out.depth, prior.depth, prior.conf & covered, lc.ncc_patch, lc.ncc_stride)
+        l_normal = L.normal_loss(out.normal, prior.normal, prior.normal_ok & covered)
+        loss = loss + lc.w_depth * l_depth + lc.w_normal * l_normal
+        parts.update(depth=float(l_depth.detach()), normal=float(l_normal.detach()))
+    if lc.w_geo > 0:
+        # weights from the prior depth where confident, the rendered depth elsewhere; log depth
+        # makes |grad D| the relative depth change (scale-free)
+        d = out.depth.detach()
+        if prior is not None:
+            d = torch.where(prior.conf, prior.depth, d)
+        l_geo = L.geo_consistency_loss(out.normal, torch.log(d.clamp_min(1e-6)), covered)
+        loss = loss + lc.w_geo * l_geo
+        parts["geo"] = float(l_geo.detach())
+    return loss, parts
+
+
+# ----------------------------------------------------------------------------- checkpoints
+
+def save_checkpoint(path: Path, key: str, it: int, params: SplatParams, stats: DensifyStats,
+                    log: list) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save({"key": key, "iter": it, "params": params.state_dict(), "stats": stats.__dict__,
+                "torch_rng": torch.get_rng_state(), "log": log}, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path: Path, key: str) -> Optional[dict]:
+    if not path.is_file():
+        return None
+    try:
+        ck = torch.load(path, weights_only=False)
+    except Exception:  # a torn file from a killed run: start over
+        return None
+    return ck if ck.get("key") == key else None
+
+
+# ----------------------------------------------------------------------------- training
+
+def train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[int, DepthPrior],
+          out_dir: Path, key: str, log_every: int = 100) -> tuple[GaussianModel, dict]:
+    """Optimise the splats; returns (model, training summary)."""
+    torch.manual_seed(conf.seed)
+    rng = np.random.default_rng(conf.seed)
+    train_views = [v for v in views if v.split == "train"]
+    if not train_views:
+        raise StageError(STAGE, "no_training_frames", "every frame of the clip is held out")
+    extent = scene_extent(views)
+    lrs = learning_rates(conf, extent)
+    ck_path = Path(out_dir) / CHECKPOINT
+    ck = load_checkpoint(ck_path, key)
+    if ck is None:
+        params = SplatParams.from_model(init_model(clip, conf, rng), lrs)
+        stats, start, log = DensifyStats.zeros(params.n), 0, []
+    else:
+        params = SplatParams.from_state_dict(ck["params"], lrs)
+        stats, start, log = DensifyStats(**ck["stats"]), int(ck["iter"]), list(ck["log"])
+        torch.set_rng_state(ck["torch_rng"])
+    cams = {v.index: Camera.from_cam_to_world(v.K, v.cam_to_world, v.width, v.height) for v in train_views}
+    gts = {v.index: (torch.from_numpy(v.image), torch.from_numpy(v.mask)) for v in train_views}
+    ptens = {v.index: prior_tensors(priors[v.index], v, conf.loss.normal_pca_window)
+             for v in train_views if v.index in priors and priors[v.index].confidence.any()}
+    dc = conf.densify
+    order: list[int] = []
+    t0 = time.perf_counter()
+    for it in range(start, conf.iterations):
+        if not order:
+            order = list(rng.permutation([v.index for v in train_views]))
+        vi = order.pop()
+        params.set_lr("means", means_lr(conf, extent, it))
+        cam = cams[vi]
+        deg = min(conf.sh_degree, it // max(conf.sh_increase_every, 1))
+        settings = RasterSettings(width=cam.width, height=cam.height, active_sh_degree=deg)
+        out = render(params.model(), cam, settings, conf.background, conf.backend, absgrad=True)
+        gt, mask = gts[vi]
+        loss, parts = step_loss(conf, out, gt, mask, ptens.get(vi), params.p["log_scales"], it)
+        loss.backward()
+        if it < dc.stop_iter and out.raw.grad2d is not None:
+            absgrad = out.raw.absgrad if out.raw.absgrad is not None else out.raw.grad2d.abs()
+            stats.accumulate(out.raw.grad2d, absgrad, out.raw.radii, cam.width, cam.height)
+        params.opt.step()
+        params.opt.zero_grad(set_to_none=True)
+        done = it + 1
+        if dc.start_iter <= done < dc.stop_iter and done % dc.every == 0:
+            counts = densify_and_prune(params, stats, dc, extent, prune_large=done > dc.opacity_reset_every)
+            stats = DensifyStats.zeros(params.n)
+            log.append({"iter": done, **counts})
+            if done % dc.opacity_reset_every == 0:
+                reset_opacity(params)
+        elif done == dc.stop_iter:
+            prune_only(params, dc)
+            stats = DensifyStats.zeros(params.n)
+        if done % log_every == 0 or done == conf.iterations:
+            log.append({"iter": done, "n": params.n, "sec": round(time.perf_counter() - t0, 2), **parts})
+        if conf.checkpoint_every and done % conf.checkpoint_every == 0 and done < conf.iterations:
+            save_checkpoint(ck_path, key, done, params, stats, log)
+    model = params.detached_model()
+    return model, {"iterations": conf.iterations, "resumed_from": start, "n_gaussians": model.num,
+                   "scene_extent": extent, "log": log}
+
+
+# ----------------------------------------------------------------------------- stage
+
+def _write_json(path: Path, data: dict) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    os.replace(tmp, path)
+
+
+def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
+         gt_depth_dir: Optional[Path] = None) -> Path:
+    """Train splats for the PosedClip at `posed_clip_dir` into `out_dir` (see module doc).
+
+    gt_depth_dir: optional folder of ground-truth depth maps (`<image stem>.png` uint16 mm or
+    `.npy` metres); defaults to the clip's frame_info["gt_depth_dir"] when present.
+    """
+    posed_clip_dir, out_dir = Path(posed_clip_dir), Path(out_dir)
+    key = stage_key(STAGE, conf, clip_key(posed_clip_dir))
+    if is_done(out_dir, key):
+        return out_dir
+    if load_checkpoint(out_dir / CHECKPOINT, key) is None:
+        fresh_dir(out_dir)
+    conf.save(out_dir / "config.json")
+    clip = PosedClip.load(posed_clip_dir)
+    with Timer() as timer:
+        views = load_views(clip, conf.max_width)
+        with Timer() as t_prior:
+            priors = load_or_estimate_priors(conf, views, np.asarray(clip.points_xyz), out_dir)
+        with Timer() as t_train:
+            model, summary = train(conf, clip, views, priors, out_dir, key)
+        write_ply(model, out_dir / "splats.ply")
+        gt_dir = gt_depth_dir or clip.frame_info.get("gt_depth_dir")
+        gt = load_gt_depths(Path(gt_dir), views) if gt_dir else {}
+        metrics = evaluate_views(model, [v for v in views if v.split == "test"], conf, gt)
+    metrics.update(preset=conf.preset, prior=conf.prior.kind, geometry=conf.loss.geometry,
+                   n_gaussians=summary["n_gaussians"], iterations=summary["iterations"],
+                   resumed_from=summary["resumed_from"], prior_seconds=t_prior.seconds,
+                   train_seconds=t_train.seconds, seconds=timer.seconds,
+                   prior_coverage=_coverage(priors), resolution=[views[0].width, views[0].height])
+    _write_json(out_dir / "metrics.json", metrics)
+    _write_json(out_dir / "train_log.json", {"log": summary["log"]})
+    (out_dir / CHECKPOINT).unlink(missing_ok=True)
+    mark_done(out_dir, STAGE, key, {k: v for k, v in metrics.items() if not isinstance(v, (list, dict))},
+              timer.seconds)
+    return out_dir
+
+
+def _coverage(priors: dict[int, DepthPrior]) -> Optional[float]:
+    if not priors:
+        return None
+    return float(np.mean([p.confidence.mean() for p in priors.values()]))
