@@ -183,3 +183,17 @@ def test_cli_eval_poses_json():
     assert rep["n_matched"] == 51 and rep["ate"]["rmse"] < 1e-9
     res = CliRunner().invoke(app, ["eval", "poses", "--estimate", str(path) + ".missing", "--gt", str(path)])
     assert res.exit_code == 2
+
+
+@pytest.mark.shared_data
+def test_gopro_cori_convention_matches_gravity():
+    """Documented convention: R(cori) maps world -> camera, so R(cori)^T @ GRAV is ~constant."""
+    import csv as _csv
+    path = shared_data_path("gopro_max_sidewalk") / "telemetry_orientation_per_frame.csv"
+    _, c2w = load_gopro_orientation(path)
+    with open(path, newline="") as f:
+        g = np.array([[float(r[f"grav_{a}"]) for a in "xyz"] for r in _csv.DictReader(f)])
+    world_g = np.einsum("nij,nj->ni", c2w, g)  # R(q)^T g
+    other = np.einsum("nji,nj->ni", c2w, g)  # R(q) g
+    assert world_g.std(0).sum() < 0.5 * other.std(0).sum()
+    assert world_g.std(0).max() < 0.03

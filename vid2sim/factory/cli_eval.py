@@ -18,6 +18,7 @@ def poses(
     gt_format: str = typer.Option("auto", "--gt-format", help="kitti | synthetic | transforms | gopro-csv | colmap | auto"),
     est_format: str = typer.Option("auto", "--est-format", help="posed | colmap | transforms | kitti | auto"),
     fps: Optional[float] = typer.Option(None, "--fps", help="GoPro: frame rate to key sub-sampled estimate frames by timestamp."),
+    stride: int = typer.Option(1, "--stride", help="GoPro: estimate frame j is video frame j * stride."),
     as_json: bool = typer.Option(False, "--json", help="Print the full report as JSON."),
 ) -> None:
     """ATE / RPE after Sim(3) alignment, or relative rotation error against GoPro telemetry."""
@@ -27,7 +28,7 @@ def poses(
     from vid2sim.factory.eval_poses import PoseEvalError, evaluate_paths
 
     try:
-        rep = evaluate_paths(estimate, gt, gt_format, est_format, fps=fps)
+        rep = evaluate_paths(estimate, gt, gt_format, est_format, fps=fps, stride=stride)
     except PoseEvalError as e:
         typer.echo(f"error: {e}", err=True)
         raise typer.Exit(2)

@@ -286,14 +286,16 @@ def fit_extrinsic(rel_est: np.ndarray, rel_ref: np.ndarray) -> np.ndarray:
 
 
 def gopro_rotation_errors(est: Trajectory, csv_path: Path, deltas: tuple[int, ...] = (1, 5, 15),
-                          fit: bool = True, fps: Optional[float] = None) -> dict:
+                          fit: bool = True, fps: Optional[float] = None, stride: int = 1) -> dict:
     """Relative rotation error (degrees) between estimate and CORI over frame pairs (i, i + k).
 
     `angle_gap`: | angle(rel_est) - angle(rel_cori) |, no frame assumption at all.
     `fitted`: angle(rel_est^T X^T rel_cori X) with the camera-to-IMU rotation X fitted on delta=max.
+    Estimate frame j is video frame j * stride (or round(timestamp * fps) when fps is given);
+    deltas count estimate frames.
     """
     gidx, Rg = load_gopro_orientation(csv_path)
-    keys = est.keys
+    keys = est.keys * stride  # estimate frame j is video frame j * stride (sub-sampled frames)
     if fps is not None and est.timestamps is not None:  # estimate frames sub-sampled: key by time
         keys = np.round(est.timestamps * fps).astype(int)
     common, ie, ig = np.intersect1d(keys, gidx, return_indices=True)
@@ -311,7 +313,7 @@ def gopro_rotation_errors(est: Trajectory, csv_path: Path, deltas: tuple[int, ..
     for k in deltas:
         if k >= len(common):
             continue
-        ok = (common[k:] - common[:-k]) == k  # only pairs exactly k frames apart
+        ok = (common[k:] - common[:-k]) == k * stride  # only pairs exactly k samples apart
         rel_e, rel_g = _relative(Re, k)[ok], _relative(Rg, k)[ok]
         if len(rel_e) == 0:
             continue
@@ -326,13 +328,13 @@ def gopro_rotation_errors(est: Trajectory, csv_path: Path, deltas: tuple[int, ..
 
 
 def evaluate_paths(estimate: Path, gt: Path, gt_format: str = "auto", est_format: str = "auto",
-                   deltas: tuple[int, ...] = (1, 10), fps: Optional[float] = None) -> dict:
+                   deltas: tuple[int, ...] = (1, 10), fps: Optional[float] = None, stride: int = 1) -> dict:
     """Top-level entry used by `vid2sim eval poses`."""
     est = load_trajectory(estimate, est_format)
     gt = Path(gt)
     if gt_format == "auto" and gt.suffix == ".csv":
         gt_format = "gopro-csv"
     if gt_format == "gopro-csv":
-        rot = gopro_rotation_errors(est, gt, fps=fps)
+        rot = gopro_rotation_errors(est, gt, fps=fps, stride=stride)
         return {"estimate": est.source, "ground_truth": f"gopro:{gt}", "rotation": rot}
     return evaluate(est, load_trajectory(gt, gt_format), deltas)
