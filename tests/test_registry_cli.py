@@ -49,6 +49,9 @@ def test_cli_flow(tmp_path):
     assert (Path(co["path"]) / "splats.ply").is_file()
     assert json.loads(run("verify", "-r", root, "--json").stdout) == {"ok": True, "problems": []}
     assert json.loads(run("gc", "-r", root, "--json", "--grace-seconds", "0").stdout)["removed"] == []
+    before = run("history", "-r", root, "--json").stdout
+    assert run("compact", "-r", root, "--json").exit_code == 0
+    assert run("history", "-r", root, "--json").stdout == before  # compaction changes no row
     for table_cmd in (["list"], ["show", "a"], ["history"], ["query", "select 1 as x"], ["split"], ["verify"]):
         assert run(*table_cmd, "-r", root).exit_code == 0  # rich tables render
 

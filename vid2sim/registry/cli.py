@@ -235,6 +235,17 @@ def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 @app.command()
 @handles_errors
+def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
+    """Merge the manifest's small Parquet files and checkpoint (rows and history unchanged)."""
+    metrics = _open(registry).compact()
+    if as_json:
+        _echo_json(metrics)
+    else:
+        typer.echo(f"compacted: {metrics.get('numFilesRemoved', 0)} files -> {metrics.get('numFilesAdded', 0)}")
+
+
+@app.command()
+@handles_errors
 def query(sql: str = typer.Argument(..., help="DuckDB SQL over tables `scenes` (all versions) and `latest`."),
           registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt) -> None:
     """Run SQL over the manifests."""
