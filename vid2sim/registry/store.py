@@ -6,6 +6,12 @@ Layout under the root (a local folder, `file://` URI, or object-store URI):
 
 `add` stores every blob BEFORE committing the manifest row, so a row never points at a missing
 blob; a writer killed mid-way leaves at most unreferenced blobs, which `gc` removes.
+
+Roots: a plain path or `file://` URI (tested), or an object-store URI (s3://, gs://, az://...):
+blobs then go through pyarrow/fsspec filesystems and the manifest through delta-rs with
+`storage_options`. On S3, safe concurrent commits need delta-rs's conditional-put or locking
+options. `memory://` works for the blob store but not for the manifest (delta-rs's in-memory
+store is private to one table handle).
 """
 
 from __future__ import annotations
