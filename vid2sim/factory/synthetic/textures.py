@@ -66,7 +66,7 @@ def _lines(coord: np.ndarray, period: float, width: float) -> np.ndarray:
 
 
 def _asphalt(u, v, p, fp, col, c):
-    g = 0.30 + 0.10 * fbm(u, v, fp, (3.0, 11.0, 37.0, 120.0), 11)
+    g = 0.30 + 0.20 * fbm(u, v, fp, (3.0, 11.0, 37.0, 120.0), 11)
     grain = hash2(np.floor(u * 90), np.floor(v * 90), 12)
     g = g + 0.10 * detail(fp, 1 / 90) * ((grain > 0.93) * 0.8 - (grain < 0.05) * 0.6)
     rgb = np.stack([g, g, g * 1.03], 1)
@@ -80,7 +80,7 @@ def _asphalt(u, v, p, fp, col, c):
 
 def _sidewalk(u, v, p, fp, col, c):
     slab = hash2(np.floor(u / 0.6), np.floor(v / 0.6), 21)
-    g = 0.60 + 0.10 * (slab - 0.5) + 0.09 * fbm(u, v, fp, (5.0, 19.0, 61.0, 160.0), 22)
+    g = 0.60 + 0.12 * (slab - 0.5) + 0.22 * fbm(u, v, fp, (5.0, 19.0, 61.0, 160.0), 22)
     joint = np.maximum(_lines(u, 0.6, 0.015), _lines(v, 0.6, 0.015)) * detail(fp, 0.015)
     g = g * (1 - 0.45 * joint)
     return np.stack([g * 1.02, g, g * 0.95], 1)
@@ -128,7 +128,7 @@ def _brick(u, v, p, fp, col, c, inst, front):
 
 
 def _plaster(u, v, p, fp, col, c, inst, front):
-    stain = 0.85 + 0.25 * fbm(u, v, fp, (0.7, 3.0, 13.0, 47.0, 150.0), 61)
+    stain = 0.85 + 0.45 * fbm(u, v, fp, (0.7, 3.0, 13.0, 47.0, 150.0), 61)
     rgb = col * stain[:, None]
     band = (np.mod(v, 3.2) < 0.18) & (v > 1.0)
     rgb = np.where(band[:, None], col * 0.72, rgb)
@@ -154,7 +154,7 @@ def _plant(u, v, p, fp, col, c):
 
 
 def _car(u, v, p, fp, col, c):
-    g = 1 + 0.12 * fbm(u, v, fp, (3.0, 15.0), 101)
+    g = 1 + 0.25 * fbm(u, v, fp, (3.0, 15.0, 45.0), 101)
     rgb = col * g[:, None]
     low = p[:, 2] < -c.kerb_height + 0.38
     rgb = np.where(low[:, None], np.array([0.07, 0.07, 0.08], np.float32), rgb)
