@@ -104,3 +104,19 @@ def test_plan_clips(tmp_path: Path) -> None:
     assert [c.window for c in cut] == [(0.0, 1.0), (1.0, 2.0), (2.0, 3.0)]
     assert len({c.clip_id for c in cut}) == 3 and all(c.group == "walk" for c in cut)
     assert video.exists()
+
+
+def test_plan_manifest_isolates_bad_sources(tmp_path: Path) -> None:
+    import socket
+
+    from vid2sim.factory.clips import plan_manifest
+
+    with socket.socket() as sock:  # a loopback port with nobody listening
+        sock.bind(("127.0.0.1", 0))
+        port = sock.getsockname()[1]
+    make_video(tmp_path / "walk.mp4", n=60, fps=30)
+    rows = ROWS + [{"source": "gone.mp4", "licence": "MIT"},
+                   {"source": f"http://127.0.0.1:{port}/x.mp4", "licence": "MIT"}]
+    clips, failed = plan_manifest(_write(tmp_path / "m.yaml", rows), cache_dir=tmp_path / "cache")
+    assert [c.window for c in clips] == [(0.0, 1.5), (0.0, 2.0)]
+    assert [e.reason for _, e in failed] == ["missing_source", "unreachable_uri"]

@@ -12,8 +12,11 @@ import hashlib
 from dataclasses import dataclass, field
 from typing import Optional
 
-from vid2sim.factory.manifest import ManifestRow
-from vid2sim.factory.sources import Source
+from pathlib import Path
+
+from vid2sim.factory.manifest import ManifestRow, load_manifest
+from vid2sim.factory.sources import Source, resolve_source
+from vid2sim.factory.stage import StageError
 from vid2sim.factory.video_io import probe_video
 
 DEFAULT_CLIP_SECONDS = 15.0
@@ -66,3 +69,17 @@ def plan_clips(row: ManifestRow, source: Source, conf: ClipsConf = ClipsConf()) 
         windows = windows or [None]
     return [ClipSpec(clip_id(source, w), source, w, row.group, row.capture_height, dict(row.tags))
             for w in windows]
+
+
+def plan_manifest(path: Path, conf: ClipsConf = ClipsConf(), cache_dir: Optional[Path] = None,
+                  ) -> tuple[list[ClipSpec], list[tuple[ManifestRow, StageError]]]:
+    """All clips of a manifest, and the rows whose source failed (a bad source does not
+    stop the others; a malformed manifest row raises, since the manifest itself is wrong)."""
+    clips, failed = [], []
+    for row in load_manifest(path):
+        try:
+            src = resolve_source(row.source, cache_dir, row.sha256)
+            clips.extend(plan_clips(row, src, conf))
+        except StageError as e:
+            failed.append((row, e))
+    return clips, failed

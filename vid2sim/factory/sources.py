@@ -134,7 +134,12 @@ def _copy_uri(uri: str, out) -> None:
     import fsspec
 
     try:
-        with fsspec.open(uri, "rb") as f:
+        kwargs = {}
+        if uri.startswith(("http://", "https://")):
+            import aiohttp
+
+            kwargs["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=None, sock_connect=30, sock_read=60)}
+        with fsspec.open(uri, "rb", **kwargs) as f:
             while block := f.read(1 << 20):
                 out.write(block)
     except ImportError as e:  # e.g. s3fs / gcsfs not installed
