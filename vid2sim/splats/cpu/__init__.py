@@ -6,5 +6,6 @@ Threads: numba.set_num_threads(n) bounds every kernel.
 """
 
 from .function import rasterize
+from .static import StaticScene, StaticSceneConfig
 
-__all__ = ["rasterize"]
+__all__ = ["rasterize", "StaticScene", "StaticSceneConfig"]

@@ -39,6 +39,7 @@ class Frame:
 
     ids: np.ndarray  # [V] int64 visible splat indices (model order)
     fo: np.ndarray  # [V, NF] per-visible-splat screen quantities
+    box: np.ndarray  # [V, 4] int32 pixel box (j0, i0, j1, i1 inclusive)
     tile_offsets: np.ndarray  # [n_tiles + 1]
     inst: np.ndarray  # [M] visible index per (tile, depth) instance
     color: np.ndarray  # [H, W, 3]
@@ -53,19 +54,18 @@ class Frame:
     radii: np.ndarray  # [N] int32
 
 
-def composite(ids: np.ndarray, fo: np.ndarray, rect: np.ndarray, width: int, height: int,
-              tile: int) -> tuple:
-    """Bin the visible splats (fo [V, NF], rect [V, 4]) and composite all tiles."""
+def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: int) -> tuple:
+    """Bin the visible splats (fo [V, NF], box [V, 4]) and composite all tiles."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     order = depth_order(np.ascontiguousarray(fo[:, F_Z]))
-    offsets, inst = bin_tiles(order, rect, tiles_x, n_tiles)
+    offsets, inst = bin_tiles(order, box, tile, tiles_x, n_tiles)
     color = np.empty((height, width, 3), np.float32)
     normal = np.empty((height, width, 3), np.float32)
     alpha, depth, median, T_final = (np.empty((height, width), np.float32) for _ in range(4))
     n_contrib = np.empty((height, width), np.int32)
     med_idx = np.empty((height, width), np.int32)
-    raster_forward(fo, offsets, inst, width, height, tile, color, alpha, depth, normal,
+    raster_forward(fo, box, offsets, inst, width, height, tile, color, alpha, depth, normal,
                    median, T_final, n_contrib, med_idx)
     return offsets, inst, color, alpha, depth, normal, median, T_final, n_contrib, med_idx
 
@@ -77,19 +77,19 @@ def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera
     W, H, tile = settings.width, settings.height, settings.tile_size
     N = means.shape[0]
     fo = np.empty((N, NF), np.float32)
-    rect = np.empty((N, 4), np.int32)
+    box = np.empty((N, 4), np.int32)
     radii = np.empty(N, np.int32)
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
     project_forward(np.arange(N, dtype=np.int64), means, quats, log_scales, logits, sh, deg,
                     view, campos, cam, W, H, float(settings.near), float(settings.far),
-                    cov_alpha, tile, fo, rect, radii)
+                    cov_alpha, fo, box, radii)
     ids = np.flatnonzero(radii)
-    fo_v, rect_v = fo[ids], rect[ids]
-    parts = composite(ids, fo_v, rect_v, W, H, tile)
+    fo_v, box_v = fo[ids], box[ids]
+    parts = composite(fo_v, box_v, W, H, tile)
     means2d = np.zeros((N, 2), np.float32)
     means2d[ids, 0] = fo_v[:, F_X]
     means2d[ids, 1] = fo_v[:, F_Y]
-    return Frame(ids, fo_v, *parts, means2d=means2d, radii=radii)
+    return Frame(ids, fo_v, box_v, *parts, means2d=means2d, radii=radii)
 
 
 class _Rasterize(torch.autograd.Function):
@@ -119,7 +119,7 @@ class _Rasterize(torch.autograd.Function):
         d_alpha_np, d_depth_np, d_median_np = (np.zeros((H, W), np.float32) if g is None
                                                else _np32(g)
                                                for g in (d_alpha, d_depth, d_median))
-        g2 = raster_backward(fr.fo, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
+        g2 = raster_backward(fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
                              setup.settings.tile_size, fr.T_final, fr.n_contrib, fr.med_idx,
                              d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
                              numba.get_num_threads())

@@ -33,8 +33,8 @@ def sigma_cut(opacity):
 
 
 @njit(cache=True)
-def screen_and_rect(t, Sc, opacity, cam, lims, cov_alpha, width, height, tile, fo, c, rect):
-    """Shared steps 4-7 for candidate c: writes fo[c] geometry and rect[c]; returns radius (0 = culled)."""
+def screen_and_box(t, Sc, opacity, cam, lims, cov_alpha, width, height, fo, c, box):
+    """Shared steps 4-7 for candidate c: writes fo[c] geometry and box[c]; returns radius (0 = culled)."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     tx, ty, tz = t
     A, B, C, j00, j02, j11, j12, txc, tyc, cxm, cym = project_cov(tx, ty, tz, Sc, fx, fy, lims)
@@ -57,11 +57,12 @@ def screen_and_rect(t, Sc, opacity, cam, lims, cov_alpha, width, height, tile, f
     fo[c, F_O] = opacity
     fo[c, F_CUT] = cut
     fo[c, F_Z] = tz
-    # Tile rect from the axis-aligned extent of the sigma <= cut ellipse (pixel centres j + 0.5).
-    rect[c, 0] = 0
-    rect[c, 1] = 0
-    rect[c, 2] = 0
-    rect[c, 3] = 0
+    # Pixel box (inclusive) of the sigma <= cut ellipse's axis-aligned extent (centres j + 0.5);
+    # empty (j1 < j0) when the splat can reach no pixel.
+    box[c, 0] = 0
+    box[c, 1] = 0
+    box[c, 2] = -1
+    box[c, 3] = -1
     if cut > 0.0:
         ex = math.sqrt(2.0 * cut * A) * 1.001 + 1e-3
         ey = math.sqrt(2.0 * cut * C) * 1.001 + 1e-3
@@ -70,10 +71,10 @@ def screen_and_rect(t, Sc, opacity, cam, lims, cov_alpha, width, height, tile, f
         i0 = max(math.ceil(my - ey - 0.5), 0)
         i1 = min(math.floor(my + ey - 0.5), height - 1)
         if j0 <= j1 and i0 <= i1:
-            rect[c, 0] = j0 // tile
-            rect[c, 1] = i0 // tile
-            rect[c, 2] = j1 // tile + 1
-            rect[c, 3] = i1 // tile + 1
+            box[c, 0] = j0
+            box[c, 1] = i0
+            box[c, 2] = j1
+            box[c, 3] = i1
     return max(r, 1)
 
 
@@ -111,8 +112,9 @@ def view_parts(view):
 
 @njit(parallel=True, cache=True)
 def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos, cam,
-                    width, height, near, far, cov_alpha, tile, fo, rect, radii):
-    """Project candidates idx [C] -> fo [C, NF] float32, rect [C, 4] int32, radii [C] int32."""
+                    width, height, near, far, cov_alpha, fo, box, radii):
+    """Project candidates idx [C] -> fo [C, NF] float32, box [C, 4] int32 (pixel box
+    j0, i0, j1, i1 inclusive), radii [C] int32."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     for c in prange(idx.shape[0]):
@@ -130,8 +132,7 @@ def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos
                       math.exp(log_scales[i, 2]))
         Sc = mm3(mm3(W, S3), tr3(W))
         opacity = 1.0 / (1.0 + math.exp(-logits[i]))
-        r = screen_and_rect(t, Sc, opacity, cam, lims, cov_alpha, width, height, tile, fo, c,
-                            rect)
+        r = screen_and_box(t, Sc, opacity, cam, lims, cov_alpha, width, height, fo, c, box)
         radii[c] = r
         if r == 0:
             continue

@@ -1,8 +1,11 @@
 """Per-tile compositing (forward) and its back-to-front gradient pass (backward).
 
-Forward reads the binned splats and writes the raw images plus, per pixel, the final
-transmittance, the number of splats walked (n_contrib) and the median splat's list
-position, which backward uses to traverse back to front as the 3DGS rasteriser does.
+Each tile walks its depth-sorted splat list once and, per splat, only the pixels of the
+splat's pixel box inside the tile (splat-major order with per-pixel state: the same
+per-pixel arithmetic and order as the 3DGS pixel loop, but tiny splats cost a few pixels
+instead of the whole tile). Forward writes the raw images plus, per pixel, the final
+transmittance, n_contrib (list position after the last blended splat) and the median
+splat's list position; backward walks back to front from those, recovering T by division.
 """
 
 from __future__ import annotations
@@ -23,77 +26,95 @@ T_MED = F32(0.5)
 ONE = F32(1.0)
 HALF = F32(0.5)
 ZERO = F32(0.0)
+NL = 14  # packed per-splat columns F_X .. F_NZ
 
 
 @njit(cache=True)
-def gather(fo, inst, s, n, g):
-    """Copy the n splats of a tile (inst[s:s+n]) into the packed local array g [n, 14]."""
+def gather(fo, box, inst, s, n, g, gb):
+    """Copy the n splats of a tile (inst[s:s+n]) into packed g [n, NL] and boxes gb [n, 4]."""
     for k in range(n):
         v = inst[s + k]
-        for q in range(14):
+        for q in range(NL):
             g[k, q] = fo[v, q]
+        for q in range(4):
+            gb[k, q] = box[v, q]
 
 
 @njit(cache=True)
-def _tile_forward(g, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
+def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
                   n_contrib, med_idx):
-    for py in range(y0, y1):
-        fy = F32(py) + HALF
-        for px in range(x0, x1):
-            fx = F32(px) + HALF
-            T = ONE
-            cr = ZERO
-            cg = ZERO
-            cb = ZERO
-            dd = ZERO
-            nx = ZERO
-            ny = ZERO
-            nz = ZERO
-            med = -1
-            last = 0
-            for k in range(n):
-                dx = fx - g[k, F_X]
-                dy = fy - g[k, F_Y]
-                s = HALF * (g[k, F_A] * dx * dx + g[k, F_C] * dy * dy) + g[k, F_B] * dx * dy
-                if s < ZERO or s > g[k, F_CUT]:
+    tw = x1 - x0
+    npx = tw * (y1 - y0)
+    T = np.ones(npx, np.float32)
+    acc = np.zeros((npx, 7), np.float32)  # r g b depth nx ny nz
+    med = np.full(npx, -1, np.int32)
+    last = np.zeros(npx, np.int32)
+    done = np.zeros(npx, np.bool_)
+    n_done = 0
+    for k in range(n):
+        bx0 = max(gb[k, 0], x0)
+        bx1 = min(gb[k, 2] + 1, x1)
+        by0 = max(gb[k, 1], y0)
+        by1 = min(gb[k, 3] + 1, y1)
+        mx, my = g[k, F_X], g[k, F_Y]
+        ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
+        o, cut = g[k, F_O], g[k, F_CUT]
+        for py in range(by0, by1):
+            dy = (F32(py) + HALF) - my
+            row = (py - y0) * tw - x0
+            for px in range(bx0, bx1):
+                p = row + px
+                if done[p]:
                     continue
-                if s > S_MAX:
+                dx = (F32(px) + HALF) - mx
+                s = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                if s < ZERO or s > cut or s > S_MAX:
                     continue
-                al = min(A_MAX, g[k, F_O] * np.exp(-s))
+                al = min(A_MAX, o * np.exp(-s))
                 if al < A_MIN:
                     continue
-                Tn = T * (ONE - al)
+                Tp = T[p]
+                Tn = Tp * (ONE - al)
                 if Tn < T_MIN:
-                    break
-                w = al * T
-                cr += w * g[k, F_R]
-                cg += w * g[k, F_G]
-                cb += w * g[k, F_BL]
-                dd += w * g[k, F_Z]
-                nx += w * g[k, F_NX]
-                ny += w * g[k, F_NY]
-                nz += w * g[k, F_NZ]
-                if med < 0 and Tn <= T_MED:
-                    med = k
-                T = Tn
-                last = k + 1
-            color[py, px, 0] = cr
-            color[py, px, 1] = cg
-            color[py, px, 2] = cb
-            alpha[py, px] = ONE - T
-            depth[py, px] = dd
-            normal[py, px, 0] = nx
-            normal[py, px, 1] = ny
-            normal[py, px, 2] = nz
-            median[py, px] = g[med, F_Z] if med >= 0 else ZERO
-            T_out[py, px] = T
-            n_contrib[py, px] = last
-            med_idx[py, px] = med
+                    done[p] = True
+                    n_done += 1
+                    continue
+                w = al * Tp
+                a = acc[p]
+                a[0] += w * g[k, F_R]
+                a[1] += w * g[k, F_G]
+                a[2] += w * g[k, F_BL]
+                a[3] += w * g[k, F_Z]
+                a[4] += w * g[k, F_NX]
+                a[5] += w * g[k, F_NY]
+                a[6] += w * g[k, F_NZ]
+                if med[p] < 0 and Tn <= T_MED:
+                    med[p] = k
+                T[p] = Tn
+                last[p] = k + 1
+        if n_done == npx:
+            break
+    for py in range(y0, y1):
+        for px in range(x0, x1):
+            p = (py - y0) * tw + px - x0
+            a = acc[p]
+            color[py, px, 0] = a[0]
+            color[py, px, 1] = a[1]
+            color[py, px, 2] = a[2]
+            alpha[py, px] = ONE - T[p]
+            depth[py, px] = a[3]
+            normal[py, px, 0] = a[4]
+            normal[py, px, 1] = a[5]
+            normal[py, px, 2] = a[6]
+            median[py, px] = g[med[p], F_Z] if med[p] >= 0 else ZERO
+            T_out[py, px] = T[p]
+            n_contrib[py, px] = last[p]
+            med_idx[py, px] = med[p]
 
 
 @njit(parallel=True, cache=True)
-def raster_forward(fo, tile_offsets, inst, width, height, tile, color, alpha, depth, normal,
-                   median, T_out, n_contrib, med_idx):
+def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alpha, depth,
+                   normal, median, T_out, n_contrib, med_idx):
     """Composite every tile (parallel over tiles); outputs are [H, W(, 3)] arrays."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
@@ -104,82 +125,82 @@ def raster_forward(fo, tile_offsets, inst, width, height, tile, color, alpha, de
         y0 = (t // tiles_x) * tile
         x1 = min(x0 + tile, width)
         y1 = min(y0 + tile, height)
-        g = np.empty((max(n, 1), 14), np.float32)
-        gather(fo, inst, s, n, g)
-        _tile_forward(g, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
+        g = np.empty((max(n, 1), NL), np.float32)
+        gb = np.empty((max(n, 1), 4), np.int32)
+        gather(fo, box, inst, s, n, g, gb)
+        _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
                       n_contrib, med_idx)
 
 
 @njit(cache=True)
-def _tile_backward(g, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color, d_alpha,
-                   d_depth, d_normal, d_median, acc):
+def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
+                   d_alpha, d_depth, d_normal, d_median, acc):
+    tw = x1 - x0
+    npx = tw * (y1 - y0)
+    T = np.empty(npx, np.float32)
+    last = np.empty(npx, np.int32)
+    gpix = np.empty((npx, 8), np.float32)  # dL/d(r g b depth nx ny nz), dL/dalpha * T_final
+    S = np.zeros((npx, 7), np.float32)  # colour/depth/normal accumulated behind the splat
     for py in range(y0, y1):
-        fy = F32(py) + HALF
         for px in range(x0, x1):
-            fx = F32(px) + HALF
-            last = n_contrib[py, px]
-            med = med_idx[py, px]
-            if med >= 0:
-                acc[vids[med], G_Z] += d_median[py, px]
-            if last == 0:
-                continue
-            T_fin = T_out[py, px]
-            T = T_fin
-            gr, gg, gb = d_color[py, px, 0], d_color[py, px, 1], d_color[py, px, 2]
-            gd = d_depth[py, px]
-            gnx, gny, gnz = d_normal[py, px, 0], d_normal[py, px, 1], d_normal[py, px, 2]
-            gAT = d_alpha[py, px] * T_fin
-            sr = ZERO
-            sg = ZERO
-            sb = ZERO
-            sd = ZERO
-            snx = ZERO
-            sny = ZERO
-            snz = ZERO
-            for k in range(last - 1, -1, -1):
-                dx = fx - g[k, F_X]
-                dy = fy - g[k, F_Y]
-                ca, cb_, cc = g[k, F_A], g[k, F_B], g[k, F_C]
-                s = HALF * (ca * dx * dx + cc * dy * dy) + cb_ * dx * dy
-                if s < ZERO or s > g[k, F_CUT]:
+            p = (py - y0) * tw + px - x0
+            T[p] = T_out[py, px]
+            last[p] = n_contrib[py, px]
+            m = med_idx[py, px]
+            if m >= 0:
+                acc[vids[m], G_Z] += d_median[py, px]
+            q = gpix[p]
+            q[0] = d_color[py, px, 0]
+            q[1] = d_color[py, px, 1]
+            q[2] = d_color[py, px, 2]
+            q[3] = d_depth[py, px]
+            q[4] = d_normal[py, px, 0]
+            q[5] = d_normal[py, px, 1]
+            q[6] = d_normal[py, px, 2]
+            q[7] = d_alpha[py, px] * T[p]
+    for k in range(n - 1, -1, -1):
+        bx0 = max(gb[k, 0], x0)
+        bx1 = min(gb[k, 2] + 1, x1)
+        by0 = max(gb[k, 1], y0)
+        by1 = min(gb[k, 3] + 1, y1)
+        mx, my = g[k, F_X], g[k, F_Y]
+        ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
+        o, cut = g[k, F_O], g[k, F_CUT]
+        ck = (g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z], g[k, F_NX], g[k, F_NY], g[k, F_NZ])
+        a = acc[vids[k]]
+        for py in range(by0, by1):
+            dy = (F32(py) + HALF) - my
+            row = (py - y0) * tw - x0
+            for px in range(bx0, bx1):
+                p = row + px
+                if k >= last[p]:
                     continue
-                if s > S_MAX:
+                dx = (F32(px) + HALF) - mx
+                s = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                if s < ZERO or s > cut or s > S_MAX:
                     continue
-                o = g[k, F_O]
                 G = np.exp(-s)
                 raw = o * G
                 al = min(A_MAX, raw)
                 if al < A_MIN:
                     continue
                 om = ONE - al
-                T = T / om
-                w = al * T
-                a = acc[vids[k]]
-                r, gc_, bc = g[k, F_R], g[k, F_G], g[k, F_BL]
-                zk = g[k, F_Z]
-                nxk, nyk, nzk = g[k, F_NX], g[k, F_NY], g[k, F_NZ]
-                a[G_R] += w * gr
-                a[G_G] += w * gg
-                a[G_BL] += w * gb
-                a[G_Z] += w * gd
-                a[G_NX] += w * gnx
-                a[G_NY] += w * gny
-                a[G_NZ] += w * gnz
-                dal = T * ((r - sr) * gr + (gc_ - sg) * gg + (bc - sb) * gb + (zk - sd) * gd
-                           + (nxk - snx) * gnx + (nyk - sny) * gny + (nzk - snz) * gnz)
-                dal += gAT / om
-                sr = al * r + om * sr
-                sg = al * gc_ + om * sg
-                sb = al * bc + om * sb
-                sd = al * zk + om * sd
-                snx = al * nxk + om * snx
-                sny = al * nyk + om * sny
-                snz = al * nzk + om * snz
+                Tp = T[p] / om
+                T[p] = Tp
+                w = al * Tp
+                q = gpix[p]
+                Sp = S[p]
+                dal = ZERO
+                for c in range(7):
+                    a[G_R + c] += w * q[c]
+                    dal += (ck[c] - Sp[c]) * q[c]
+                    Sp[c] = al * ck[c] + om * Sp[c]
+                dal = Tp * dal + q[7] / om
                 if raw <= A_MAX:
                     a[G_O] += G * dal
                     ds = -al * dal
-                    gmx = -ds * (ca * dx + cb_ * dy)
-                    gmy = -ds * (cc * dy + cb_ * dx)
+                    gmx = -ds * (ca * dx + cb * dy)
+                    gmy = -ds * (cc * dy + cb * dx)
                     a[G_MX] += gmx
                     a[G_MY] += gmy
                     a[G_AX] += abs(gmx)
@@ -190,7 +211,7 @@ def _tile_backward(g, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_colo
 
 
 @njit(parallel=True, cache=True)
-def raster_backward(fo, tile_offsets, inst, n_vis, width, height, tile, T_out, n_contrib,
+def raster_backward(fo, box, tile_offsets, inst, n_vis, width, height, tile, T_out, n_contrib,
                     med_idx, d_color, d_alpha, d_depth, d_normal, d_median, n_chunks):
     """Per-visible-splat 2D gradients g2 [V, NG] float32.
 
@@ -210,10 +231,11 @@ def raster_backward(fo, tile_offsets, inst, n_vis, width, height, tile, T_out, n
             y0 = (t // tiles_x) * tile
             x1 = min(x0 + tile, width)
             y1 = min(y0 + tile, height)
-            g = np.empty((n, 14), np.float32)
-            gather(fo, inst, s, n, g)
-            _tile_backward(g, inst[s:s + n], n, x0, y0, x1, y1, T_out, n_contrib, med_idx,
-                           d_color, d_alpha, d_depth, d_normal, d_median, bufs[h])
+            g = np.empty((n, NL), np.float32)
+            gb = np.empty((n, 4), np.int32)
+            gather(fo, box, inst, s, n, g, gb)
+            _tile_backward(g, gb, inst[s:s + n], n, x0, y0, x1, y1, T_out, n_contrib,
+                           med_idx, d_color, d_alpha, d_depth, d_normal, d_median, bufs[h])
     out = np.empty((n_vis, NG), np.float32)
     for v in prange(n_vis):
         for q in range(NG):
