@@ -13,8 +13,29 @@ from numba import njit
 
 @njit(cache=True)
 def depth_order(z):
-    """Stable ascending order of float32 depths z [V] (ties by index)."""
-    return np.argsort(z, kind="mergesort")
+    """Stable ascending order of float32 depths z [V] (ties by index): LSD radix sort,
+    three 11-bit passes over order-preserving uint32 keys of the float bits."""
+    n = z.shape[0]
+    bits = z.view(np.uint32)
+    keys = np.empty(n, np.uint32)
+    for i in range(n):
+        b = bits[i]
+        keys[i] = b ^ np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else b ^ np.uint32(0x80000000)
+    order = np.arange(n).astype(np.int64)
+    tmp = np.empty(n, np.int64)
+    for shift in (0, 11, 22):
+        count = np.zeros(2049, np.int64)
+        sh = np.uint32(shift)
+        for i in range(n):
+            count[((keys[order[i]] >> sh) & np.uint32(2047)) + 1] += 1
+        for d in range(2048):
+            count[d + 1] += count[d]
+        for i in range(n):
+            d = (keys[order[i]] >> sh) & np.uint32(2047)
+            tmp[count[d]] = order[i]
+            count[d] += 1
+        order, tmp = tmp, order
+    return order
 
 
 @njit(cache=True)

@@ -33,7 +33,7 @@ def sigma_cut(opacity):
 
 
 @njit(cache=True)
-def screen_and_box(t, Sc, opacity, cam, lims, cov_alpha, width, height, fo, c, box):
+def screen_and_box(t, Sc, opacity, cut, cam, lims, cov_alpha, width, height, fo, c, box):
     """Shared steps 4-7 for candidate c: writes fo[c] geometry and box[c]; returns radius (0 = culled)."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     tx, ty, tz = t
@@ -48,7 +48,6 @@ def screen_and_box(t, Sc, opacity, cam, lims, cov_alpha, width, height, fo, c, b
     r = radius_of(A, B, C)
     if mx + r <= 0.0 or mx - r >= width or my + r <= 0.0 or my - r >= height:
         return 0
-    cut = sigma_cut(opacity)
     fo[c, F_X] = mx
     fo[c, F_Y] = my
     fo[c, F_A] = C / det
@@ -132,7 +131,7 @@ def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos
                       math.exp(log_scales[i, 2]))
         Sc = mm3(mm3(W, S3), tr3(W))
         opacity = 1.0 / (1.0 + math.exp(-logits[i]))
-        r = screen_and_box(t, Sc, opacity, cam, lims, cov_alpha, width, height, fo, c, box)
+        r = screen_and_box(t, Sc, opacity, sigma_cut(opacity), cam, lims, cov_alpha, width, height, fo, c, box)
         radii[c] = r
         if r == 0:
             continue

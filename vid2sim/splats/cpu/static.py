@@ -22,7 +22,8 @@ from ..sh import C0
 from ..types import RasterOutput, RasterSettings, RenderOutput
 from .function import camera_arrays, composite
 from .preprocess import NF
-from .static_kernels import compact, cull_cells, finish_images, project_static, scatter_visible
+from .static_kernels import (compact, cull_cells, finish_images, project_static,
+                             scatter_visible, sigma_cuts)
 
 ALPHA_MIN = 1.0 / 255.0
 
@@ -76,6 +77,7 @@ class StaticScene:
         self.cov = np.ascontiguousarray(np.stack([c[:, 0, 0], c[:, 0, 1], c[:, 0, 2], c[:, 1, 1],
                                                   c[:, 1, 2], c[:, 2, 2]], 1))
         self.opacity = np.ascontiguousarray(op.numpy()[order])
+        self.cut = sigma_cuts(self.opacity)
         self.normal = np.ascontiguousarray(normal.numpy()[order])
         self.rgb = np.ascontiguousarray(rgb.numpy()[order])
         self.sh = np.ascontiguousarray(sh.numpy()[order])
@@ -114,7 +116,7 @@ class StaticScene:
         radii = np.empty(rows, np.int32)
         src = np.empty(rows, np.int64)
         project_static(cells, self.cell_start, row_start, self.means, self.cov, self.opacity,
-                       self.normal, self.rgb, self.sh, deg, view, campos, cam, W, H,
+                       self.cut, self.normal, self.rgb, self.sh, deg, view, campos, cam, W, H,
                        float(settings.near), float(settings.far), cov_alpha, fo, box, radii, src)
         fo_v, box_v, ids = compact(fo, box, radii, src)
         (_, _, color, alpha, depth_acc, normal_acc, median, _, _, _) = composite(

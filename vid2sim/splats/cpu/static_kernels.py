@@ -10,7 +10,8 @@ from numba import njit, prange
 
 from ._geom import jac_limits, mm3, tr3
 from ._sh import sh_color
-from .preprocess import F_BL, F_G, F_NX, F_NY, F_NZ, F_R, cam_normal, screen_and_box, view_parts
+from .preprocess import (F_BL, F_G, F_NX, F_NY, F_NZ, F_R, cam_normal, screen_and_box, sigma_cut,
+                         view_parts)
 
 EDGE_MARGIN_PX = 3.0  # low-pass dilation (<= 1.65 px at 3 sigma) + pixel-centre rounding
 
@@ -53,7 +54,7 @@ def cull_cells(centers, r_means, rho, view, cam, width, height, near, far):
 
 
 @njit(parallel=True, cache=True)
-def project_static(cells, cell_start, row_start, means, cov, opacity, normal_w, rgb, sh, deg,
+def project_static(cells, cell_start, row_start, means, cov, opacity, cut, normal_w, rgb, sh, deg,
                    view, campos, cam, width, height, near, far, cov_alpha, fo, box, radii,
                    src):
     """Project the splats of the kept cells; row row_start[j] + k holds splat
@@ -79,7 +80,7 @@ def project_static(cells, cell_start, row_start, means, cov, opacity, normal_w, 
                   cov[i, 2], cov[i, 4], cov[i, 5])
             Sc = mm3(mm3(W, S3), WT)
             t = (tx, ty, tz)
-            rad = screen_and_box(t, Sc, opacity[i], cam, lims, cov_alpha, width, height, fo,
+            rad = screen_and_box(t, Sc, opacity[i], cut[i], cam, lims, cov_alpha, width, height, fo,
                                  r_, box)
             radii[r_] = rad
             if rad == 0:
@@ -159,3 +160,12 @@ def scatter_visible(fo_v, ids, index, radii, num, means2d, radii_out):
             means2d[m, 1] = fo_v[j, 1]
             radii_out[m] = radii[r]
             j += 1
+
+
+@njit(cache=True)
+def sigma_cuts(opacity):
+    """sigma_cut for every splat [N] (float64)."""
+    out = np.empty(opacity.shape[0], np.float64)
+    for i in range(opacity.shape[0]):
+        out[i] = sigma_cut(opacity[i])
+    return out
