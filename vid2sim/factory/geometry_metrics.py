@@ -81,3 +81,15 @@ def grid_iou(a: "WalkableMap", b: "WalkableMap") -> float:
     if union == 0:
         return 1.0
     return float(np.count_nonzero(ga & gb) / union)
+
+
+def erode_walkable(wm: "WalkableMap", radius_m: float) -> "WalkableMap":
+    """Robot-centre version of a GT walkable area: cells farther than radius_m from any
+    non-walkable cell (outside the grid counts as non-walkable). Compare our maps to this."""
+    from scipy import ndimage
+
+    from vid2sim.factory.walkable import WalkableMap
+
+    g = np.pad(wm.grid > 0, 1)
+    dist = ndimage.distance_transform_edt(g)[1:-1, 1:-1] * wm.resolution
+    return WalkableMap((dist > radius_m).astype(np.uint8), wm.origin, wm.resolution)

@@ -33,10 +33,8 @@ def mesh_arrays(mesh: MeshLike) -> tuple[np.ndarray, np.ndarray]:
 def mesh_vertex_colors(mesh: MeshLike) -> Optional[np.ndarray]:
     """Vertex colours [V, 3] uint8 when the mesh has them, else None."""
     if isinstance(mesh, trimesh.Trimesh):
-        if mesh.visual.kind == "vertex":
+        if mesh.visual.kind in ("vertex", "face"):  # face colours are averaged to vertices
             return np.asarray(mesh.visual.vertex_colors)[:, :3].astype(np.uint8)
-        if mesh.visual.kind == "face":
-            return np.asarray(mesh.visual.to_color().vertex_colors)[:, :3].astype(np.uint8)
         return None
     if isinstance(mesh, o3d.geometry.TriangleMesh) and mesh.has_vertex_colors():
         return np.clip(np.asarray(mesh.vertex_colors) * 255.0 + 0.5, 0, 255).astype(np.uint8)

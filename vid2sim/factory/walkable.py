@@ -14,8 +14,9 @@ Steps:
    gaps closed with a disc of `close_radius_m`.
 2. obstacles: collision-mesh surface points with a height in [obstacle_min_z_m,
    obstacle_max_z_m] above the local ground (mean z of the ground points in the cell, nearest
-   seen cell elsewhere; z = 0 without ground points) rasterised, inflated by the robot radius (Euclidean distance
-   transform). Defaults: robot radius 0.3 m (a sidewalk delivery robot about 0.6 m wide);
+   seen cell elsewhere; z = 0 without ground points) rasterised, plus ground steps (height
+   range > max_step_m within step_window_m: kerb drops), inflated by the robot radius
+   (Euclidean distance transform). Defaults: robot radius 0.3 m (a sidewalk delivery robot about 0.6 m wide);
    0.1 m is the tallest step treated as ground roughness; above 1.8 m (awnings, canopies)
    does not block a ground robot.
 3. keep the 4-connected component(s) containing the camera path (each camera position
@@ -62,6 +63,10 @@ class WalkableConfig:
     snap_m: float = 1.0  # how far a camera position may be from walkable cells
     max_dist_from_path_m: float = 30.0  # ground points farther from the path are ignored
     margin_m: float = 0.5  # grid padding around the evidence
+    # ground whose height varies by more than max_step_m within step_window_m (a kerb drop,
+    # kerb 0.12 m in the synthetic street) blocks like an obstacle; 0 disables
+    max_step_m: float = 0.08
+    step_window_m: float = 0.2
 
 
 @dataclass
@@ -194,6 +199,24 @@ def ground_height(ground_points: np.ndarray, origin: np.ndarray, shape: tuple[in
     return z[nr, nc]
 
 
+def step_cells(ground_points: np.ndarray, origin: np.ndarray, shape: tuple[int, int],
+               conf: WalkableConfig) -> np.ndarray:
+    """Seen cells [H, W] bool whose ground height range within step_window_m exceeds
+    max_step_m (steps and drop-offs that ground-band obstacles miss)."""
+    if conf.max_step_m <= 0 or len(ground_points) == 0:
+        return np.zeros(shape, bool)
+    r, c = _cells(ground_points[:, :2], origin, shape, conf.resolution_m)
+    flat = r * shape[1] + c
+    n = np.bincount(flat, minlength=shape[0] * shape[1]).reshape(shape)
+    zsum = np.bincount(flat, ground_points[:, 2], minlength=shape[0] * shape[1]).reshape(shape)
+    seen = n > 0
+    z = zsum / np.maximum(n, 1)
+    k = 2 * int(np.ceil(conf.step_window_m / conf.resolution_m)) + 1
+    zmax = ndimage.maximum_filter(np.where(seen, z, -np.inf), size=k)
+    zmin = ndimage.minimum_filter(np.where(seen, z, np.inf), size=k)
+    return seen & (zmax - zmin > conf.max_step_m)
+
+
 def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
                    origin: np.ndarray, conf: WalkableConfig) -> np.ndarray:
     """Cells [H, W] bool under collision geometry within the obstacle height band above the
@@ -253,7 +276,8 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
     origin, shape = _grid_frame(np.concatenate([gp[:, :2], path[:, :2]]), conf)
     seen = ground_evidence(gp, path[:, :2], origin, shape, conf)
     gz = ground_height(gp, origin, shape, conf)
-    blocked = inflate(obstacle_cells(collision_mesh, gz, origin, conf), conf.robot_radius_m, res)
+    occupied = obstacle_cells(collision_mesh, gz, origin, conf) | step_cells(gp, origin, shape, conf)
+    blocked = inflate(occupied, conf.robot_radius_m, res)
     free = seen & ~blocked
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
