@@ -13,8 +13,6 @@ float32 for compositing, the reference float32 throughout):
 
 from __future__ import annotations
 
-import math
-
 import numba
 import numpy as np
 import pytest

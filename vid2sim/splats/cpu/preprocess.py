@@ -1,4 +1,4 @@
-"""Per-splat forward (projection, culling, colour, normal, tile rect) and backward kernels.
+"""Per-splat forward (projection, culling, colour, normal, pixel box) and backward kernels.
 
 Forward reads the model arrays for a candidate list `idx` and writes one row per candidate;
 backward reads per-visible-splat 2D gradients and writes the model gradients.
@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit, prange
 
 from ._geom import (conic_vjp, cov3d, jac_limits, mm3, project_cov, quat_rot, quat_rot_vjp,

@@ -14,8 +14,7 @@ import numpy as np
 from numba import njit, prange
 
 from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X,
-                         F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_BL, G_C, G_G, G_MX, G_MY, G_NX,
-                         G_NY, G_NZ, G_O, G_R, G_Z, NG)
+                         F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_C, G_MX, G_MY, G_O, G_R, G_Z, NG)
 
 F32 = np.float32
 S_MAX = F32(4.5)
@@ -191,7 +190,7 @@ def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_
                 q = gpix[p]
                 Sp = S[p]
                 dal = ZERO
-                for c in range(7):
+                for c in range(7):  # G_R .. G_NZ follow the F_R .. F_NZ order
                     a[G_R + c] += w * q[c]
                     dal += (ck[c] - Sp[c]) * q[c]
                     Sp[c] = al * ck[c] + om * Sp[c]
