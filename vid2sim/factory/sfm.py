@@ -92,6 +92,7 @@ class SfMQuality:
     camera_model: str = ""
     camera_params: list[float] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
+    images_dir: str = ""  # the input frames (the metric stage finds timestamps beside them)
     failed: str = ""
 
 
@@ -373,7 +374,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     if is_done(out_dir, key):
         return out_dir
     fresh_dir(out_dir)
-    q = SfMQuality(num_frames=len(names))
+    q = SfMQuality(num_frames=len(names), images_dir=str(images_dir.resolve()))
     if len(names) < conf.min_frames:
         raise fail(out_dir, q, "too_few_frames",
                    f"{images_dir} has {len(names)} frames, need >= {conf.min_frames}")
@@ -396,7 +397,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     if rec is None:
         raise fail(out_dir, q, "too_few_registered", f"no model could be built from {images_dir}")
     q = dataclasses.replace(measure(rec, len(names)), seconds=q.seconds, mapper=used,
-                            median_flow_px=q.median_flow_px)
+                            median_flow_px=q.median_flow_px, images_dir=q.images_dir)
     check_quality(conf, out_dir, q)
     with Timer() as t:
         write_outputs(out_dir, images_dir, masks, rec, conf)
