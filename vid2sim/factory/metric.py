@@ -45,6 +45,8 @@ class MetricConfig:
     lower_image_fraction: float = 0.5  # ground candidates: observed in the lower part of images
     max_tilt_deg: float = 35.0  # plane normal within this of the cameras' mean up direction
     inlier_frac_of_height: float = 0.03  # RANSAC threshold = this x rough camera height
+    corridor_frac_of_height: float = 3.0  # keep points within this x height of the path (sideways)
+    local_radius_frac: float = 4.0  # camera height measured on ground points within this x height
     ransac_iters: int = 2000
     min_ground_points: int = 30
     holdout_every: int = 8
@@ -98,6 +100,30 @@ def rotation_to_world(n: np.ndarray, forward: np.ndarray) -> np.ndarray:
         f = np.cross(n, [1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0])
     x = f / np.linalg.norm(f)
     return np.stack([x, np.cross(n, x), n])
+
+
+def corridor(pts: np.ndarray, centers: np.ndarray, up: np.ndarray,
+             frac: float) -> tuple[np.ndarray, float]:
+    """Points [M, 3] whose sideways distance to the nearest camera < frac x rough height."""
+    _, near = cKDTree(centers).query(pts)
+    rel = pts - centers[near]  # [M, 3]
+    below = -(rel @ up)
+    rough_h = float(np.median(below))
+    side = np.linalg.norm(rel + np.outer(below, up), axis=1)
+    keep = side < frac * rough_h
+    return pts[keep], float(np.median(below[keep])) if keep.any() else rough_h
+
+
+def local_heights(centers: np.ndarray, ground: np.ndarray, n: np.ndarray, d: float,
+                  radius: float, min_points: int = 10) -> np.ndarray:
+    """Per-camera height [N] above the ground points near its foot (the plane where too few)."""
+    feet = centers - np.outer(centers @ n + d, n)
+    tree = cKDTree(ground)
+    heights = centers @ n + d
+    for i, near in enumerate(tree.query_ball_point(feet, radius)):
+        if len(near) >= min_points:
+            heights[i] = float(np.median((centers[i] - ground[near]) @ n))
+    return heights
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
@@ -233,11 +259,12 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
         raise StageError(STAGE, "no_ground_plane",
                          f"only {len(ids)} SfM points below the cameras (need {conf.min_ground_points})")
     pts = np.array([rec.point3D(int(i)).xyz for i in ids])  # [M, 3]
-    _, near = cKDTree(centers).query(pts)
-    rough_h = float(np.median(-(pts - centers[near]) @ up))
+    pts, rough_h = corridor(pts, centers, up, conf.corridor_frac_of_height)
+    if len(pts) < conf.min_ground_points:
+        raise StageError(STAGE, "no_ground_plane", f"only {len(pts)} SfM points along the path")
     n, d, inl = ransac_plane(pts, up, conf.inlier_frac_of_height * rough_h, conf.max_tilt_deg,
                              conf.ransac_iters, conf.seed)
-    heights = centers @ n + d  # [N]
+    heights = local_heights(centers, pts[inl], n, d, conf.local_radius_frac * rough_h)  # [N]
     if np.median(heights) <= 0 or inl.sum() < conf.min_ground_points:
         raise StageError(STAGE, "no_ground_plane",
                          f"plane with {int(inl.sum())} inliers lies above the cameras or is too thin")

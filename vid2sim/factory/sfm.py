@@ -83,7 +83,7 @@ class SfMQuality:
     num_frames: int = 0
     num_registered: int = 0
     registered_fraction: float = 0.0
-    mean_reproj_error_px: float = float("nan")
+    mean_reproj_error_px: Optional[float] = None
     mean_track_length: float = 0.0
     num_points: int = 0
     median_tri_angle_deg: float = 0.0
