@@ -1,0 +1,217 @@
+"""Benchmark: decode -> masks -> SfM -> metric on real and synthetic clips, with pose errors.
+
+Clips (real ones from ../shared/data; skipped when absent):
+  gopro      gopro_max_sidewalk/max-heromode.mp4, sampled at 10 fps (every 3rd frame, ~105 frames,
+             848x480). Bars: >= 95 % registered, mean reprojection error <= 1 px; relative rotation
+             error vs telemetry_orientation_per_frame.csv; scale from 1.5 m vs from GPS5 speed.
+  kitti      kitti_rural (51 frames, PINHOLE K from calib.txt P0). Bar: ATE <= 1 % of the path;
+             metric scale from the known 1.65 m camera height vs ground truth.
+  lund       opensfm_lund_street (29 iPhone photos, EXIF focal): registers and reports.
+  synthetic  the procedural street (10 s, 854x480): ATE, metric scale and ground normal vs GT.
+Prints registered fraction, reprojection error, track length, ATE, seconds per stage and the
+hardware line. Usage:
+    .venv/bin/python benchmarks/sfm.py [--clips gopro,kitti,lund,synthetic] [--preset fast]
+                                       [--work /tmp/vid2sim-bench-sfm]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import time
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
+
+
+def hardware_line() -> str:
+    cpu = "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    return (f"{cpu}; {os.cpu_count()} cores; load avg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
+            f"{platform.python_implementation()} {platform.python_version()}")
+
+
+def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
+    t0 = time.perf_counter()
+    out = fn()
+    times[name] = time.perf_counter() - t0
+    return out
+
+
+def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tuple[Path, Path]:
+    """The factory's decode (10 fps, faces blurred) and masks stages."""
+    from vid2sim.factory import decode, masks
+
+    dconf = decode.DecodeConf(fps=10.0, max_side=max_side, workers=2)
+    ddir = timed(times, "decode", lambda: decode.main(dconf, str(video), work / "decode"))
+    mdir = timed(times, "masks", lambda: masks.main(masks.MasksConf(), ddir, work / "masks"))
+    return ddir / "images", mdir / "masks"
+
+
+def sfm_and_metric(sconf: Any, mconf: Any, images: Path, masks_dir: Any, work: Path,
+                   times: dict) -> tuple[Path, Path, dict]:
+    from vid2sim.factory import metric, sfm
+
+    sdir = timed(times, "sfm", lambda: sfm.main(sconf, images, masks_dir, work / "sfm"))
+    pdir = timed(times, "metric", lambda: metric.main(mconf, sdir, work / "metric"))
+    return sdir, pdir, sfm.load_quality(sdir)
+
+
+def report(name: str, q: dict, times: dict, extra: dict) -> dict:
+    total = sum(times.values())
+    print(f"\n== {name}")
+    print(f"registered {q['num_registered']}/{q['num_frames']} ({q['registered_fraction']:.1%}), "
+          f"mapper {q['mapper']}, camera {q['camera_model']} "
+          f"{[round(p, 3) for p in q['camera_params']]}")
+    print(f"mean reprojection error {q['mean_reproj_error_px']:.3f} px, mean track length "
+          f"{q['mean_track_length']:.2f}, {q['num_points']} points, median tri angle "
+          f"{q['median_tri_angle_deg']:.2f} deg")
+    print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in times.items()) + f"; total {total:.1f}")
+    print("sfm steps: " + ", ".join(f"{k} {v:.1f}" for k, v in q["seconds"].items()))
+    for k, v in extra.items():
+        print(f"{k}: {v}")
+    return {"clip": name, "quality": q, "seconds": times, "total_s": total, **extra}
+
+
+def frame_facts(pdir: Path) -> dict:
+    info = json.loads((pdir / "frame.json").read_text())
+    return {"scale_source": info["scale_source"], "plane_inliers": info["plane_inliers"],
+            "plane_residual_rms_m": round(info["plane_residual_rms_m"], 4),
+            "gravity_prior_angle_deg": round(info["gravity_prior_angle_deg"], 2),
+            "camera_height_m": {k: round(v, 3) for k, v in info["camera_height_m"].items()}}
+
+
+def run_gopro(work: Path, preset: str) -> dict:
+    from vid2sim.factory import metric, sfm
+    from vid2sim.factory.camera_model import LensHint
+    from vid2sim.factory.eval_poses import gopro_rotation_errors, load_posed_clip
+
+    src = DATA / "gopro_max_sidewalk"
+    times: dict = {}
+    images, masks_dir = decode_and_mask(src / "max-heromode.mp4", work, times, 848)
+    sconf = sfm.preset(preset, lens=LensHint(make="GoPro", model="MAX"))
+    _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.5), images,
+                                masks_dir, work, times)
+    est = load_posed_clip(pdir)
+    rot = gopro_rotation_errors(est, src / "telemetry_orientation_per_frame.csv", deltas=(1, 5, 15),
+                                fps=29.97)
+    gps = metric.main(metric.MetricConfig(gps_csv=str(src / "telemetry_gps5.csv")), work / "sfm",
+                      work / "metric_gps")
+    s_h = json.loads((pdir / "frame.json").read_text())["scale"]
+    s_gps = json.loads((gps / "frame.json").read_text())["scale"]
+    extra = {"rotation_error_deg (fitted median per delta)":
+             {k: round(v["fitted_median_deg"], 3) for k, v in rot["deltas"].items()},
+             "rotation angle gap mean deg": {k: round(v["angle_gap_mean_deg"], 3)
+                                             for k, v in rot["deltas"].items()},
+             "scale 1.5 m height / scale GPS": round(s_h / s_gps, 3),
+             "bars": {"registered>=95%": q["registered_fraction"] >= 0.95,
+                      "reproj<=1px": q["mean_reproj_error_px"] <= 1.0},
+             **frame_facts(pdir)}
+    return report("gopro_max_sidewalk (10 fps, 848x480)", q, times, extra)
+
+
+def kitti_K(calib: Path) -> list[float]:
+    P0 = np.array([v for v in calib.read_text().splitlines()[0].split() if ":" not in v],
+                  float).reshape(3, 4)
+    return [P0[0, 0], P0[1, 1], P0[0, 2], P0[1, 2]]
+
+
+def run_kitti(work: Path, preset: str) -> dict:
+    from vid2sim.factory import metric, sfm
+    from vid2sim.factory.eval_poses import evaluate, load_kitti_poses, load_posed_clip
+
+    src = DATA / "kitti_rural"
+    times: dict = {}
+    sconf = sfm.preset(preset, camera_model="PINHOLE", camera_params=kitti_K(src / "calib.txt"),
+                       max_image_size=1241)
+    _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.65),
+                                src / "image_l", None, work, times)
+    ev = evaluate(load_posed_clip(pdir), load_kitti_poses(src / "poses.txt"))
+    extra = {"ATE rmse m": round(ev["ate"]["rmse"], 3),
+             "ATE % of path": round(ev["ate"]["rmse_pct_of_path"], 3),
+             "path m": round(ev["ate"]["path_length"], 2),
+             "metric scale error (1.65 m height)": f"{(1 / ev['ate']['scale'] - 1):+.1%}",
+             "bars": {"ATE<=1%": ev["ate"]["rmse_pct_of_path"] <= 1.0}, **frame_facts(pdir)}
+    return report("kitti_rural (51 frames, known K)", q, times, extra)
+
+
+def run_lund(work: Path, preset: str) -> dict:
+    from vid2sim.factory import metric, sfm
+
+    src = DATA / "opensfm_lund_street"
+    times: dict = {}
+    _, pdir, q = sfm_and_metric(sfm.preset(preset, max_image_size=1024), metric.MetricConfig(),
+                                src / "images", None, work, times)
+    return report("opensfm_lund_street (29 photos)", q, times, frame_facts(pdir))
+
+
+def run_synthetic(work: Path, preset: str) -> dict:
+    from vid2sim.factory import metric, sfm
+    from vid2sim.factory.eval_poses import evaluate, load_posed_clip
+    from vid2sim.factory.synthetic import generate_street, render_video
+    from vid2sim.factory.synthetic import preset as street_preset
+
+    conf = street_preset("demo", seed=0)
+    clip = render_video(generate_street(conf), conf, work / "render")
+    times: dict = {}
+    images, masks_dir = decode_and_mask(clip.video, work, times, 854)
+    _, pdir, q = sfm_and_metric(sfm.preset(preset), metric.MetricConfig(capture_height_m=1.5),
+                                images, masks_dir, work, times)
+    ev = evaluate(load_posed_clip(pdir), load_posed_clip(work / "render"))
+    R = np.asarray(ev["ate"]["rotation"])
+    normal_err = float(np.degrees(np.arccos(np.clip((R @ [0, 0, 1.0])[2], -1, 1))))
+    extra = {"matched frames": ev["n_matched"], "ATE % of path": round(ev["ate"]["rmse_pct_of_path"], 3),
+             "metric scale error (1.5 m height)": f"{(1 / ev['ate']['scale'] - 1):+.1%}",
+             "ground normal error deg": round(normal_err, 2),
+             "bars": {"ATE<=0.5%": ev["ate"]["rmse_pct_of_path"] <= 0.5,
+                      "scale within 10%": abs(1 / ev["ate"]["scale"] - 1) <= 0.1,
+                      "normal<=2deg": normal_err <= 2.0,
+                      "decode+masks+sfm+metric<=180s": sum(times.values()) <= 180},
+             **frame_facts(pdir)}
+    return report("synthetic street (10 s, 854x480)", q, times, extra)
+
+
+RUNNERS = {"gopro": run_gopro, "kitti": run_kitti, "lund": run_lund, "synthetic": run_synthetic}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--clips", default="gopro,kitti,lund,synthetic")
+    ap.add_argument("--preset", default="fast")
+    ap.add_argument("--work", default="/tmp/vid2sim-bench-sfm")
+    ap.add_argument("--keep", action="store_true", help="reuse finished stages in --work")
+    a = ap.parse_args()
+    print(hardware_line())
+    results = []
+    for name in a.clips.split(","):
+        work = Path(a.work) / name
+        if not a.keep:
+            shutil.rmtree(work, ignore_errors=True)
+        if name != "synthetic" and not DATA.exists():
+            print(f"\n== {name}: skipped ({DATA} is absent)")
+            continue
+        try:
+            results.append(RUNNERS[name](work, a.preset))
+        except Exception as e:  # report and go on with the next clip
+            print(f"\n== {name}: FAILED {type(e).__name__}: {e}")
+    print("\n" + hardware_line())
+    Path(a.work).mkdir(parents=True, exist_ok=True)
+    (Path(a.work) / "results.json").write_text(json.dumps(results, indent=2, default=str))
+
+
+if __name__ == "__main__":
+    main()
