@@ -90,3 +90,15 @@ def test_requested_model_and_bad_model():
     assert choose_camera_model(640, 480, requested="SIMPLE_RADIAL").model == "SIMPLE_RADIAL"
     with pytest.raises(ValueError):
         choose_camera_model(640, 480, requested="KANNALA")
+
+
+def test_cli_reports_named_error(tmp_path):
+    from typer.testing import CliRunner
+
+    from vid2sim.cli import app
+
+    rng = np.random.default_rng(2)
+    images = _write_frames(tmp_path / "images", [_texture(rng, 160, 120) for _ in range(3)])
+    res = CliRunner().invoke(app, ["sfm", "run", "--images", str(images), "--out", str(tmp_path / "sfm")])
+    assert res.exit_code == 2
+    assert "too_few_frames" in res.output

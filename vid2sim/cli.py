@@ -21,6 +21,8 @@ def _register_subapps() -> None:
     app.add_typer(registry_app, name="registry")
     from vid2sim.factory.cli_eval import app as eval_app
     app.add_typer(eval_app, name="eval")
+    from vid2sim.factory.cli_sfm import app as sfm_app
+    app.add_typer(sfm_app, name="sfm")
     from vid2sim.factory.cli_ingest import ingest_command
     app.command("ingest")(ingest_command)
 
