@@ -118,10 +118,29 @@ def run_gopro(work: Path, preset: str) -> dict:
              "rotation angle gap mean deg": {k: round(v["angle_gap_mean_deg"], 3)
                                              for k, v in rot["deltas"].items()},
              "scale 1.5 m height / scale GPS": round(s_h / s_gps, 3),
+             "gravity vs GRAV median deg": round(gravity_error_deg(
+                 pdir, src / "telemetry_orientation_per_frame.csv"), 2),
              "bars": {"registered>=95%": q["registered_fraction"] >= 0.95,
                       "reproj<=1px": q["mean_reproj_error_px"] <= 1.0},
              **frame_facts(pdir)}
     return report("gopro_max_sidewalk (10 fps, 848x480)", q, times, extra)
+
+
+def gravity_error_deg(pdir: Path, csv_path: Path, fps: float = 29.97) -> float:
+    """Median angle between our world down (-z) in camera axes and the GoPro GRAV vector."""
+    import csv
+
+    from vid2sim.factory.posed import PosedClip
+
+    with open(csv_path, newline="") as f:
+        grav = {int(r["sample"]): np.array([float(r[f"grav_{a}"]) for a in "xyz"]) for r in csv.DictReader(f)}
+    errs = []
+    for fr in PosedClip.load(pdir).frames:
+        g = grav.get(int(round(fr.timestamp * fps)))
+        if g is not None:
+            down = fr.cam_to_world[:3, :3].T @ np.array([0.0, 0.0, -1.0])
+            errs.append(np.degrees(np.arccos(np.clip(down @ g / np.linalg.norm(g), -1, 1))))
+    return float(np.median(errs)) if errs else float("nan")
 
 
 def kitti_K(calib: Path) -> list[float]:

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from vid2sim.factory import metric
+from vid2sim.factory.eval_poses import load_transforms_json
 from vid2sim.factory.posed import PosedClip
 from vid2sim.factory.stage import StageError, mark_done
 
@@ -118,7 +119,10 @@ def test_main_writes_posed_clip_in_metric_world(tmp_path):
     assert x[-1] - x[0] == pytest.approx(0.4 * 29 * 1.6 / np.median(c2w[:, 2, 3]), rel=0.02)
     assert abs(np.percentile(clip.points_xyz[:, 2], 20)) < 0.05  # many points on the ground at z=0
     assert clip.frame_info["scale_source"] == "capture_height"
-    assert (out / "sparse" / "images.bin").exists() and (out / "transforms.json").exists()
+    assert (out / "sparse" / "images.bin").exists()
+    exported = load_transforms_json(out / "transforms.json")  # OpenGL axes back to OpenCV
+    ours = np.stack([f.cam_to_world for f in clip.frames])
+    np.testing.assert_allclose(exported.T, ours, atol=1e-9)
     assert metric.main(metric.MetricConfig(capture_height_m=1.6), tmp_path / "sfm", out) == out  # cached
 
 
