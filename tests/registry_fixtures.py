@@ -105,11 +105,12 @@ def make_bundle(
     return out_dir
 
 
-def concurrent_worker(root: str, wid: int, bundles: list[str], common: str, shared: str) -> list[str]:
+def concurrent_worker(root: str, wid: int, bundles: list[str], common: str, shared: str,
+                      auto_compact_files: int = 50) -> list[str]:
     """Run in a spawned process: add own bundles, the common bundle, and tag the shared scene."""
-    from vid2sim.registry import Registry
+    from vid2sim.registry.store import Registry, RegistryConfig
 
-    reg = Registry(root)
+    reg = Registry(root, config=RegistryConfig(auto_compact_files=auto_compact_files))
     refs = []
     for i, b in enumerate(bundles):
         refs.append(reg.add(b).ref)
@@ -121,11 +122,11 @@ def concurrent_worker(root: str, wid: int, bundles: list[str], common: str, shar
 
 KILL_LOOP = """
 import sys
-from vid2sim.registry import Registry
-reg = Registry(sys.argv[1])
+from vid2sim.registry.store import Registry, RegistryConfig
+reg = Registry(sys.argv[1], config=RegistryConfig(auto_compact_files=int(sys.argv[2])))
 reg.version  # open the table before announcing readiness
 print("ready", flush=True)
-for b in sys.argv[2:]:
+for b in sys.argv[3:]:
     reg.add(b)
     print("added", b, flush=True)
 """

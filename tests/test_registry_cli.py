@@ -52,6 +52,9 @@ def test_cli_flow(tmp_path):
     before = run("history", "-r", root, "--json").stdout
     assert run("compact", "-r", root, "--json").exit_code == 0
     assert run("history", "-r", root, "--json").stdout == before  # compaction changes no row
+    vac = json.loads(run("compact", "-r", root, "--json", "--vacuum-hours", "0", "--dry-run").stdout)
+    assert vac["numFilesRemoved"] == 0 and len(vac["vacuumed"]) >= 2  # files the first compact replaced
+    assert run("list", "-r", root, "--as-of", "1", "--json").exit_code == 0  # dry run: still readable
     for table_cmd in (["list"], ["show", "a"], ["history"], ["query", "select 1 as x"], ["split"], ["verify"]):
         assert run(*table_cmd, "-r", root).exit_code == 0  # rich tables render
 

@@ -1,4 +1,8 @@
-"""Real processes: concurrent committers lose nothing; a SIGKILLed committer corrupts nothing."""
+"""Real processes: concurrent committers lose nothing; a SIGKILLed committer corrupts nothing.
+
+Both run with a tiny auto-compaction threshold, so compactions race commits and each other, and
+kills land mid-compaction too.
+"""
 
 from __future__ import annotations
 
@@ -18,6 +22,11 @@ from vid2sim.registry import Registry
 
 TESTS_DIR = Path(__file__).resolve().parent
 N_PROCS, N_EACH = 4, 4
+AUTO_COMPACT_FILES = 3  # compact after nearly every commit
+
+
+def _compactions(reg: Registry) -> int:
+    return sum(h.get("vid2sim.operation") == "compact" for h in reg.manifest.history())
 
 
 def _assert_consistent(reg: Registry) -> None:
@@ -45,7 +54,8 @@ def test_concurrent_committers_lose_nothing(tmp_path):
             for w in range(N_PROCS)]
     ctx = mp.get_context("spawn")  # deltalake panics in forked children
     with ctx.Pool(N_PROCS) as pool:
-        results = pool.starmap(concurrent_worker, [(root, w, jobs[w], common, "shared") for w in range(N_PROCS)])
+        results = pool.starmap(concurrent_worker, [(root, w, jobs[w], common, "shared", AUTO_COMPACT_FILES)
+                                                   for w in range(N_PROCS)])
     assert sum(len(r) for r in results) == 2 * N_PROCS * N_EACH
 
     reg = Registry(root)
@@ -56,7 +66,10 @@ def test_concurrent_committers_lose_nothing(tmp_path):
     assert len(reg.history("common")) == 1  # identical content added 4 times concurrently -> 1 version
     assert {r.scene_id for r in reg.list()} == {"shared", "common"} | {f"w{w}-s{i}" for w in range(N_PROCS)
                                                                        for i in range(N_EACH)}
-    assert reg.version == len(reg.history())  # version 0 = table creation, then one commit per row
+    n_compact = _compactions(reg)
+    assert n_compact >= 1 and reg.manifest.num_files() <= AUTO_COMPACT_FILES + N_PROCS
+    # version 0 = table creation, then one commit per row, plus the compactions (rows unchanged)
+    assert reg.version == len(reg.history()) + n_compact
 
 
 @pytest.mark.timeout(300)
@@ -66,21 +79,22 @@ def test_sigkilled_committer_leaves_registry_consistent(tmp_path):
     rng = random.Random(1234)
     added_total = 0
     for rnd in range(4):
-        bundles = [str(make_bundle(tmp_path / f"r{rnd}-{i}", f"r{rnd}-s{i}", seed=rnd * 100 + i, n_splats=2000))
+        bundles = [str(make_bundle(tmp_path / f"r{rnd}-s{i}", f"r{rnd}-s{i}", seed=rnd * 100 + i, n_splats=2000))
                    for i in range(12)]
-        proc = subprocess.Popen([sys.executable, "-c", KILL_LOOP, root, *bundles], stdout=subprocess.PIPE,
+        # auto-compaction after every commit from the 2nd file on: kills also land mid-compaction
+        proc = subprocess.Popen([sys.executable, "-c", KILL_LOOP, root, "1", *bundles], stdout=subprocess.PIPE,
                                 text=True, env=env)
         assert proc.stdout.readline().strip() == "ready"
-        time.sleep(rng.uniform(0.05, 0.8))
+        first = proc.stdout.readline()  # one acknowledged add per round, then kill at a random point
+        time.sleep(rng.uniform(0.0, 0.5))
         proc.send_signal(signal.SIGKILL)
         out, _ = proc.communicate()
         assert proc.returncode == -signal.SIGKILL, "the committer finished before being killed"
         reg = Registry(root)
         _assert_consistent(reg)  # readable, no duplicate, no row pointing at a missing blob
         listed = {r.scene_id for r in reg.list()}
-        confirmed = {Path(line.split()[1]).name.split("-", 1)[1] for line in out.splitlines() if line.startswith("added")}
-        confirmed = {f"r{rnd}-{c}" for c in confirmed}
-        assert confirmed <= listed  # every acknowledged add survived
+        confirmed = {Path(line.split()[1]).name for line in (first + out).splitlines() if line.startswith("added")}
+        assert first.startswith("added") and confirmed <= listed  # every acknowledged add survived
         added_total = len(listed)
     # orphan blobs (stored before a commit that never happened) are all gc removes
     reg = Registry(root)
@@ -88,5 +102,6 @@ def test_sigkilled_committer_leaves_registry_consistent(tmp_path):
     removed = reg.gc(grace_s=0)
     assert all(x.startswith("tmp/") or x not in refs for x in removed)
     _assert_consistent(reg)
-    assert len(reg.list()) == added_total
+    assert len(reg.list()) == added_total >= 4
+    assert _compactions(reg) >= 1
     assert not any(b.is_temp or b.sha256 not in refs for b in reg.blobs.list())

@@ -235,13 +235,20 @@ def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 @app.command()
 @handles_errors
-def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
+def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
+            vacuum_hours: Optional[int] = typer.Option(
+                None, "--vacuum-hours", min=0,
+                help="Also delete manifest files replaced more than H hours ago: time travel to older "
+                     "versions stops working. Without it nothing is deleted."),
+            dry_run: bool = typer.Option(False, "--dry-run", help="With --vacuum-hours: only list the files.")) -> None:
     """Merge the manifest's small Parquet files and checkpoint (rows and history unchanged)."""
-    metrics = _open(registry).compact()
+    metrics = _open(registry).compact(vacuum_hours=vacuum_hours, dry_run=dry_run)
     if as_json:
         _echo_json(metrics)
-    else:
-        typer.echo(f"compacted: {metrics.get('numFilesRemoved', 0)} files -> {metrics.get('numFilesAdded', 0)}")
+        return
+    typer.echo(f"compacted: {metrics.get('numFilesRemoved', 0)} files -> {metrics.get('numFilesAdded', 0)}")
+    if vacuum_hours is not None:
+        typer.echo(f"vacuum: {'would delete' if dry_run else 'deleted'} {len(metrics['vacuumed'])} manifest file(s)")
 
 
 @app.command()

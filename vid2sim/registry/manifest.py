@@ -4,10 +4,19 @@ Commits are optimistic: a writer reads snapshot V, builds its rows from it and c
 `max_commit_retries=0`, so the commit lands as exactly V+1 or fails with CommitFailedError when
 another writer got there first; then it re-reads and rebuilds. Rows are never rewritten, so a
 scene's versions are contiguous and unique even with many concurrent writers.
+
+Maintenance: every commit adds one small Parquet file, and reads/commits slow down as they pile
+up. After a successful commit that leaves more than `auto_compact_files` active files, the writer
+rewrites the rows into one file (see `compact`) and writes a checkpoint. That is best effort:
+losing a race with a concurrent commit is logged and the commit that triggered it still succeeds.
+Compaction only tombstones the old files; they stay on disk so time travel to any earlier version
+keeps working. Only an explicit `vacuum` (`vid2sim registry compact --vacuum-hours H`) deletes
+files tombstoned more than H hours ago, after which versions older than that can no longer be read.
 """
 
 from __future__ import annotations
 
+import logging
 import random
 import time
 from datetime import datetime, timezone
@@ -51,6 +60,9 @@ TABLE_CONFIG = {
 
 AsOf = Union[None, int, str, datetime]
 
+log = logging.getLogger(__name__)
+MIN_FULL_VACUUM_HOURS = 1  # untracked files younger than this may belong to a commit in flight
+
 
 class CommitConflict(RuntimeError):
     """Gave up after too many concurrent-commit conflicts."""
@@ -76,8 +88,9 @@ def parse_as_of(as_of: AsOf) -> Union[None, int, datetime]:
 class ManifestTable:
     """Delta table wrapper: create-if-missing, snapshot reads (with time travel), safe appends."""
 
-    def __init__(self, uri: str, storage_options: Optional[dict] = None) -> None:
+    def __init__(self, uri: str, storage_options: Optional[dict] = None, auto_compact_files: int = 0) -> None:
         self.uri, self.storage_options = uri, storage_options
+        self.auto_compact_files = auto_compact_files  # 0 = never compact automatically
         self._dt = None
         self._cache: tuple[int, pa.Table] | None = None
 
@@ -131,7 +144,11 @@ class ManifestTable:
             dt.load_as_version(as_of)
         except Exception as e:
             raise ValueError(f"as-of {as_of!s}: no such registry version or time ({e})") from None
-        return dt.version(), self._to_arrow(dt)
+        try:
+            return dt.version(), self._to_arrow(dt)
+        except OSError as e:  # its data files were vacuumed
+            raise ValueError(f"as-of {as_of!s}: registry version {dt.version()} is no longer readable "
+                             f"(files removed by vacuum: {e})") from None
 
     @staticmethod
     def _to_arrow(dt) -> pa.Table:
@@ -162,9 +179,11 @@ class ManifestTable:
                 write_deltalake(self._dt, data, mode="append", storage_options=self.storage_options,
                                 commit_properties=CommitProperties(
                                     max_commit_retries=0, custom_metadata={"vid2sim.operation": operation}))
-                return v + 1, rows
             except CommitFailedError:
                 time.sleep(random.uniform(0, min(0.5, 0.005 * 2 ** min(attempt, 7))))
+                continue
+            self.maybe_compact()
+            return v + 1, rows
         raise CommitConflict(f"{self.uri}: gave up after {max_attempts} conflicting commits")
 
     def append_bulk(self, rows: list[dict]) -> int:
@@ -174,15 +193,76 @@ class ManifestTable:
         self._open()
         write_deltalake(self._dt, pa.Table.from_pylist(rows, schema=MANIFEST_SCHEMA), mode="append",
                         storage_options=self.storage_options)
+        self.maybe_compact()
         return self.refresh()
 
-    def compact(self) -> dict:
-        """Merge small Parquet files and write a checkpoint (rows and time travel unchanged)."""
-        dt = self._open()
-        metrics = dt.optimize.compact()
-        dt.update_incremental()
-        dt.create_checkpoint()
+    # -- maintenance
+    def num_files(self) -> int:
+        """Active Parquet files in the snapshot this handle holds."""
+        return len(self._open().file_uris())
+
+    def maybe_compact(self) -> Optional[dict]:
+        """Compact + checkpoint when more than `auto_compact_files` files are active; never raises.
+
+        Returns the compaction metrics, or None when under the threshold or when it failed (e.g. a
+        concurrent compactor won the race: logged, the next commit over the threshold tries again).
+        """
+        if self.auto_compact_files <= 0 or self.num_files() <= self.auto_compact_files:
+            return None
+        from deltalake.exceptions import CommitFailedError
+
+        t = time.perf_counter()
+        try:
+            metrics = self.compact()
+        except CommitFailedError as e:  # a concurrent commit won: fine, the next commit retries
+            log.info("%s: automatic compaction lost a race, skipped (%s)", self.uri, e)
+            return None
+        except Exception as e:  # maintenance must never fail the commit that already landed
+            log.warning("%s: automatic compaction failed, skipped (%s: %s)", self.uri, type(e).__name__, e)
+            self._dt = None
+            return None
+        if metrics["numFilesRemoved"]:
+            log.info("%s: auto-compacted %d files -> %d in %.2f s", self.uri, metrics["numFilesRemoved"],
+                     metrics["numFilesAdded"], time.perf_counter() - t)
         return metrics
+
+    def compact(self) -> dict:
+        """Rewrite the snapshot's rows into one file + checkpoint (rows and time travel unchanged).
+
+        Committed like our appends (exactly V+1, `max_commit_retries=0`): an overwrite of the rows
+        read at V, so a concurrent commit makes it fail with CommitFailedError rather than rebase.
+        Not delta-rs `optimize.compact()`: 1.6 rebases a compaction over a concurrent compaction of
+        the same files (dataChange=false removes are not treated as conflicts, whatever
+        max_commit_retries says), which leaves both outputs active and duplicates every row.
+        The replaced files are only tombstoned, never deleted here (see `vacuum`).
+        """
+        from deltalake import CommitProperties, write_deltalake
+
+        v, table = self.read()
+        before = len(self._dt.file_uris())
+        if before <= 1:
+            return {"numFilesRemoved": 0, "numFilesAdded": 0, "version": v}
+        write_deltalake(self._dt, table, mode="overwrite", storage_options=self.storage_options,
+                        commit_properties=CommitProperties(
+                            max_commit_retries=0, custom_metadata={"vid2sim.operation": "compact"}))
+        if self._dt.version() == v + 1:
+            self._cache = (v + 1, table)  # same rows
+        self._dt.create_checkpoint()
+        return {"numFilesRemoved": before, "numFilesAdded": len(self._dt.file_uris()), "version": v + 1}
+
+    def vacuum(self, retention_hours: int, dry_run: bool = False, full: bool = False) -> list[str]:
+        """Delete data files tombstoned (by compaction) more than `retention_hours` ago.
+
+        Explicit only: afterwards, time travel to versions older than the retention window fails.
+        `full` also deletes untracked files (left by killed writers/compactors) older than the window;
+        it needs >= MIN_FULL_VACUUM_HOURS so an in-flight writer's not-yet-committed file survives.
+        Returns the removed (or, with dry_run, removable) file names.
+        """
+        if retention_hours < 0 or (full and retention_hours < MIN_FULL_VACUUM_HOURS):
+            raise ValueError(f"vacuum retention_hours={retention_hours}: must be >= "
+                             f"{MIN_FULL_VACUUM_HOURS if full else 0}{' with full' if full else ''}")
+        return self._open().vacuum(retention_hours=int(retention_hours), dry_run=dry_run,
+                                   enforce_retention_duration=False, full=full)
 
 
 def now_utc() -> datetime:

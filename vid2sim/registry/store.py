@@ -7,6 +7,10 @@ Layout under the root (a local folder, `file://` URI, or object-store URI):
 `add` stores every blob BEFORE committing the manifest row, so a row never points at a missing
 blob; a writer killed mid-way leaves at most unreferenced blobs, which `gc` removes.
 
+The manifest compacts itself (see `RegistryConfig.auto_compact_files` and manifest.py); nothing
+is ever deleted from it without an explicit `compact(vacuum_hours=...)`, so time travel to any
+version keeps working until then.
+
 Roots: a plain path or `file://` URI (tested), or an object-store URI (s3://, gs://, az://...):
 blobs then go through pyarrow/fsspec filesystems and the manifest through delta-rs with
 `storage_options`. On S3, safe concurrent commits need delta-rs's conditional-put or locking
@@ -20,6 +24,7 @@ import json
 import os
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
 from urllib.parse import urlparse
@@ -36,6 +41,15 @@ from vid2sim.registry.split import Split, SplitConfig, make_split
 DEFAULT_ROOT = "./vid2sim-registry"
 CHECKOUT_MARKER = ".vid2sim-checkout.json"
 GC_GRACE_S = 3600.0
+
+
+@dataclass(frozen=True)
+class RegistryConfig:
+    """Registry knobs (defaults suit thousands of scenes on a local disk or object store)."""
+
+    # after a commit, merge the manifest's Parquet files + checkpoint when more than this many are
+    # active (one file per commit: ~every 50 commits); 0 = only on explicit `compact`
+    auto_compact_files: int = 50
 
 
 class RegistryError(RuntimeError):
@@ -69,7 +83,9 @@ def _check_name(name: str) -> str:
 class Registry:
     """Versioned store of scene bundles (see module docstring)."""
 
-    def __init__(self, root: str | os.PathLike | None = None, storage_options: Optional[dict] = None) -> None:
+    def __init__(self, root: str | os.PathLike | None = None, storage_options: Optional[dict] = None,
+                 config: Optional[RegistryConfig] = None) -> None:
+        self.config = config or RegistryConfig()
         root = str(root) if root is not None else default_root()
         parsed = urlparse(root)
         if parsed.scheme in ("", "file") or len(parsed.scheme) == 1:  # plain path / file:// / C:\
@@ -82,7 +98,7 @@ class Registry:
             fs, base = arrow_filesystem(self.root)
             self.blobs = ArrowBlobStore(fs, f"{base.rstrip('/')}/blobs")
             table_uri = f"{self.root}/manifests"
-        self.manifest = ManifestTable(table_uri, storage_options)
+        self.manifest = ManifestTable(table_uri, storage_options, auto_compact_files=self.config.auto_compact_files)
         self._latest_cache: Optional[tuple[int, list[SceneRecord]]] = None
 
     def __repr__(self) -> str:
@@ -307,9 +323,34 @@ class Registry:
                 removed.append(("tmp/" if b.is_temp else "") + b.sha256)
         return removed
 
-    def compact(self) -> dict:
-        """Merge the manifest's small Parquet files + checkpoint; rows and history unchanged."""
-        return self.manifest.compact()
+    def compact(self, vacuum_hours: Optional[int] = None, dry_run: bool = False) -> dict:
+        """Merge the manifest's small Parquet files + checkpoint; rows and history unchanged.
+
+        With `vacuum_hours`, also delete manifest files that compactions replaced more than that
+        many hours ago (and, when >= 1 h, untracked files from killed writers): time travel to
+        versions older than that window fails afterwards. Metrics gain "vacuumed": [file names]
+        (with `dry_run`: what vacuum would delete; nothing is deleted).
+        """
+        metrics = self._compact_retrying()  # non-destructive: always runs
+        if vacuum_hours is not None:
+            from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS
+
+            metrics["vacuumed"] = self.manifest.vacuum(vacuum_hours, dry_run=dry_run,
+                                                       full=vacuum_hours >= MIN_FULL_VACUUM_HOURS)
+        return metrics
+
+    def _compact_retrying(self, attempts: int = 20) -> dict:
+        import random
+        import time
+
+        from deltalake.exceptions import CommitFailedError
+
+        for i in range(attempts):
+            try:
+                return self.manifest.compact()
+            except CommitFailedError:  # a concurrent writer committed first: re-read and retry
+                time.sleep(random.uniform(0, min(1.0, 0.01 * 2 ** i)))
+        raise RegistryError(f"{self.root}: compaction lost to concurrent commits {attempts} times; retry later")
 
     # ------------------------------------------------------------------ checkout
     def checkout(self, scene_id: str, version: Optional[int] = None, dest: str | os.PathLike | None = None,
