@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from vid2sim.splats.cpu import StaticScene, rasterize
+from vid2sim.splats.cpu import StaticScene, StaticSceneConfig, rasterize
 from vid2sim.splats.cpu.synthetic import robot_camera, street_scene
 from vid2sim.splats.render import finish
 from vid2sim.splats.types import RasterSettings
@@ -45,3 +45,42 @@ def test_static_culls_cells_behind(street):
     cam = robot_camera(64, 36, x=16.0, yaw_deg=0.0)
     out = scene.render(cam, RasterSettings(64, 36))
     assert float(out.alpha.max()) == 0.0 and int((out.raw.radii > 0).sum()) == 0
+
+
+def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
+    return float(10 * torch.log10(1.0 / ((a - b) ** 2).mean().clamp_min(1e-20)))
+
+
+def test_lod_radius_zero_is_exact(street):
+    """With lod_pixel_radius=0 no node is merged: the LOD walk emits every visible splat."""
+    cam = robot_camera(64, 36, x=-12.0, yaw_deg=10.0)
+    st = RasterSettings(64, 36, active_sh_degree=1)
+    ex = StaticScene(street).render(cam, st)
+    lod = StaticScene(street, StaticSceneConfig(lod=True, lod_pixel_radius=0.0)).render(cam, st)
+    for k in ("rgb", "alpha", "depth", "median_depth", "normal"):
+        torch.testing.assert_close(getattr(lod, k), getattr(ex, k), atol=2e-4, rtol=1e-4)
+    assert torch.equal(lod.raw.radii > 0, ex.raw.radii > 0)
+
+
+def test_lod_merges_distant_splats_with_small_error():
+    """LOD (opt-in, approximate) projects fewer Gaussians and stays close to the exact image."""
+    street = street_scene(20000, length=60.0, seed=1)
+    cam = robot_camera(128, 72, x=-29.0)
+    st = RasterSettings(128, 72, active_sh_degree=0)
+    ex = StaticScene(street).render(cam, st)
+    scene = StaticScene(street, StaticSceneConfig(lod=True, lod_pixel_radius=2.0))
+    out = scene.render(cam, st)
+    assert scene.lod is not None and len(scene.lod.opacity) > 0
+    # merged nodes have no model index (radii 0): most distant splats went into nodes
+    assert int((out.raw.radii > 0).sum()) < 0.6 * int((ex.raw.radii > 0).sum())
+    assert _psnr(out.rgb, ex.rgb) > 33.0
+    assert float((out.alpha - ex.alpha).abs().mean()) < 0.02
+
+
+def test_per_splat_outputs_off_and_big_tiles(street):
+    cam = robot_camera(64, 36, x=-10.0)
+    full = StaticScene(street).render(cam, RasterSettings(64, 36))
+    lean = StaticScene(street, StaticSceneConfig(per_splat_outputs=False)).render(
+        cam, RasterSettings(64, 36, tile_size=128))  # kernels cap the tile at 64 px
+    assert lean.raw.radii.shape == (0,) and lean.raw.means2d.shape == (0, 2)
+    torch.testing.assert_close(lean.rgb, full.rgb, atol=2e-4, rtol=1e-4)

@@ -1,8 +1,9 @@
-"""Binning: depth-sort visible splats and build per-tile lists (counting sort by tile).
+"""Binning: depth-sort the splats that reach a pixel and build per-tile lists.
 
-Reads per-visible-splat depths [V] and pixel boxes [V, 4]; writes tile_offsets [T+1] and
-the instance list inst [M] (visible-splat index), each tile's slice sorted by depth,
-ties by index.
+Reads per-row depths fo[:, F_Z] and pixel boxes box [R, 4] (j0, i0, j1, i1 inclusive;
+empty when j1 < j0); writes tile_offsets [T+1] and the instance list inst [M] (row index),
+each tile's slice sorted by depth, ties by row index. The radix sort carries each row's
+packed tile rectangle so binning reads sequentially (no random access into `box`).
 """
 
 from __future__ import annotations
@@ -10,63 +11,90 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from .preprocess import F_Z
+
+U16 = np.uint64(0xFFFF)
+
 
 @njit(cache=True)
-def depth_order(z):
-    """Stable ascending order of float32 depths z [V] (ties by index): LSD radix sort,
-    three 11-bit passes over order-preserving uint32 keys of the float bits."""
-    n = z.shape[0]
-    bits = z.view(np.uint32)
-    keys = np.empty(n, np.uint32)
-    for i in range(n):
-        b = bits[i]
-        keys[i] = b ^ np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else b ^ np.uint32(0x80000000)
-    order = np.arange(n).astype(np.int64)
-    tmp = np.empty(n, np.int64)
+def _float_key(b):
+    """Order-preserving uint32 key of float32 bits b."""
+    return b ^ np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else b ^ np.uint32(0x80000000)
+
+
+@njit(cache=True)
+def radix_sort(keys, rows, rects):
+    """Stable ascending sort of uint32 keys [n], carrying int32 rows [n] and uint64 rects [n]:
+    LSD radix, three 11-bit passes. Returns (rows, rects) sorted."""
+    n = keys.shape[0]
+    k2 = np.empty(n, np.uint32)
+    r2 = np.empty(n, np.int32)
+    q2 = np.empty(n, np.uint64)
+    count = np.empty(2049, np.int64)
     for shift in (0, 11, 22):
-        count = np.zeros(2049, np.int64)
         sh = np.uint32(shift)
+        count[:] = 0
         for i in range(n):
-            count[((keys[order[i]] >> sh) & np.uint32(2047)) + 1] += 1
+            count[((keys[i] >> sh) & np.uint32(2047)) + 1] += 1
         for d in range(2048):
             count[d + 1] += count[d]
         for i in range(n):
-            d = (keys[order[i]] >> sh) & np.uint32(2047)
-            tmp[count[d]] = order[i]
-            count[d] += 1
-        order, tmp = tmp, order
-    return order
+            d = (keys[i] >> sh) & np.uint32(2047)
+            j = count[d]
+            k2[j] = keys[i]
+            r2[j] = rows[i]
+            q2[j] = rects[i]
+            count[d] = j + 1
+        keys, k2 = k2, keys
+        rows, r2 = r2, rows
+        rects, q2 = q2, rects
+    return rows, rects
 
 
 @njit(cache=True)
-def bin_tiles(order, box, tile, tiles_x, n_tiles):
-    """Per-tile instance lists from pixel boxes box [V, 4] (j0, i0, j1, i1 inclusive);
-    returns (tile_offsets [n_tiles+1] int64, inst [M] int32)."""
-    V = order.shape[0]
-    rect = np.empty((V, 4), np.int32)
-    for v in range(V):
-        if box[v, 2] < box[v, 0]:
-            rect[v, 0] = rect[v, 1] = rect[v, 2] = rect[v, 3] = 0
-        else:
-            rect[v, 0] = box[v, 0] // tile
-            rect[v, 1] = box[v, 1] // tile
-            rect[v, 2] = box[v, 2] // tile + 1
-            rect[v, 3] = box[v, 3] // tile + 1
+def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles):
+    """Rows r < n_rows with a non-empty pixel box, depth-sorted and binned to tiles.
+
+    Returns (tile_offsets [n_tiles+1] int64, inst [M] int32 row indices)."""
+    n = 0
+    for r in range(n_rows):
+        if box[r, 2] >= box[r, 0]:
+            n += 1
+    keys = np.empty(n, np.uint32)
+    rows = np.empty(n, np.int32)
+    rects = np.empty(n, np.uint64)
+    z = np.empty(1, np.float32)
+    bits = z.view(np.uint32)
+    j = 0
+    for r in range(n_rows):
+        if box[r, 2] >= box[r, 0]:
+            z[0] = fo[r, F_Z]
+            keys[j] = _float_key(bits[0])
+            rows[j] = r
+            rects[j] = (np.uint64(box[r, 0] // tile) | (np.uint64(box[r, 1] // tile) << 16)
+                        | (np.uint64(box[r, 2] // tile) << 32)
+                        | (np.uint64(box[r, 3] // tile) << 48))
+            j += 1
+    rows, rects = radix_sort(keys, rows, rects)
     counts = np.zeros(n_tiles + 1, np.int64)
-    for k in range(V):
-        v = order[k]
-        for ty in range(rect[v, 1], rect[v, 3]):
-            for tx in range(rect[v, 0], rect[v, 2]):
+    for k in range(n):
+        q = rects[k]
+        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
+        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
                 counts[ty * tiles_x + tx + 1] += 1
     for t in range(n_tiles):
         counts[t + 1] += counts[t]
     inst = np.empty(counts[n_tiles], np.int32)
     fill = counts[:n_tiles].copy()
-    for k in range(order.shape[0]):
-        v = order[k]
-        for ty in range(rect[v, 1], rect[v, 3]):
-            for tx in range(rect[v, 0], rect[v, 2]):
+    for k in range(n):
+        q = rects[k]
+        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
+        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
+        for ty in range(ty0, ty1 + 1):
+            for tx in range(tx0, tx1 + 1):
                 t = ty * tiles_x + tx
-                inst[fill[t]] = v
+                inst[fill[t]] = rows[k]
                 fill[t] += 1
     return counts, inst

@@ -16,9 +16,9 @@ import torch
 from ..camera import Camera
 from ..sh import sh_degree_from_coeffs
 from ..types import RasterOutput, RasterSettings
-from .binning import bin_tiles, depth_order
-from .preprocess import F_X, F_Y, F_Z, NF, project_backward, project_forward
-from .raster import raster_backward, raster_forward
+from .binning import sort_and_bin
+from .preprocess import F_X, F_Y, NF, project_backward, project_forward
+from .raster import kernel_tile, raster_backward, raster_forward
 
 
 def _np32(t: torch.Tensor) -> np.ndarray:
@@ -58,8 +58,7 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     """Bin the visible splats (fo [V, NF], box [V, 4]) and composite all tiles."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
-    order = depth_order(np.ascontiguousarray(fo[:, F_Z]))
-    offsets, inst = bin_tiles(order, box, tile, tiles_x, n_tiles)
+    offsets, inst = sort_and_bin(fo, box, fo.shape[0], tile, tiles_x, n_tiles)
     color = np.empty((height, width, 3), np.float32)
     normal = np.empty((height, width, 3), np.float32)
     alpha, depth, median, T_final = (np.empty((height, width), np.float32) for _ in range(4))
@@ -74,7 +73,7 @@ def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera
                   settings: RasterSettings) -> Frame:
     """Run the whole forward on float32 numpy inputs."""
     view, campos, cam = camera_arrays(camera)
-    W, H, tile = settings.width, settings.height, settings.tile_size
+    W, H, tile = settings.width, settings.height, kernel_tile(settings.tile_size)
     N = means.shape[0]
     fo = np.empty((N, NF), np.float32)
     box = np.empty((N, 4), np.int32)
@@ -120,7 +119,7 @@ class _Rasterize(torch.autograd.Function):
                                                else _np32(g)
                                                for g in (d_alpha, d_depth, d_median))
         g2 = raster_backward(fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
-                             setup.settings.tile_size, fr.T_final, fr.n_contrib, fr.med_idx,
+                             kernel_tile(setup.settings.tile_size), fr.T_final, fr.n_contrib, fr.med_idx,
                              d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
                              numba.get_num_threads())
         N = means.shape[0]

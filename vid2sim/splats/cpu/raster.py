@@ -26,6 +26,13 @@ ONE = F32(1.0)
 HALF = F32(0.5)
 ZERO = F32(0.0)
 NL = 14  # packed per-splat columns F_X .. F_NZ
+MAX_TILE = 64  # tile rows carry a 64-bit mask of terminated pixels
+
+
+def kernel_tile(tile_size: int) -> int:
+    """Tile edge the kernels use: settings.tile_size capped at MAX_TILE (results do not
+    depend on the tile size)."""
+    return max(1, min(int(tile_size), MAX_TILE))
 
 
 @njit(cache=True)
@@ -49,6 +56,7 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
     med = np.full(npx, -1, np.int32)
     last = np.zeros(npx, np.int32)
     done = np.zeros(npx, np.bool_)
+    rmask = np.zeros(y1 - y0, np.uint64)  # per tile row: bit (px - x0) set once px is done
     n_done = 0
     for k in range(n):
         bx0 = max(gb[k, 0], x0)
@@ -58,7 +66,12 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
         mx, my = g[k, F_X], g[k, F_Y]
         ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
         o, cut = g[k, F_O], g[k, F_CUT]
+        if bx1 <= bx0:
+            continue
+        span = ((np.uint64(1) << np.uint64(bx1 - bx0)) - np.uint64(1)) << np.uint64(bx0 - x0)
         for py in range(by0, by1):
+            if rmask[py - y0] & span == span:
+                continue  # every pixel of this row's span has terminated
             dy = (F32(py) + HALF) - my
             row = (py - y0) * tw - x0
             for px in range(bx0, bx1):
@@ -77,6 +90,7 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
                 if Tn < T_MIN:
                     done[p] = True
                     n_done += 1
+                    rmask[py - y0] |= np.uint64(1) << np.uint64(px - x0)
                     continue
                 w = al * Tp
                 a = acc[p]
@@ -117,6 +131,8 @@ def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alph
     """Composite every tile (parallel over tiles); outputs are [H, W(, 3)] arrays."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
+    if tile > MAX_TILE:
+        raise ValueError(f"cpu raster: tile {tile} > {MAX_TILE} (use kernel_tile())")
     for t in prange(n_tiles):
         s = tile_offsets[t]
         n = tile_offsets[t + 1] - s

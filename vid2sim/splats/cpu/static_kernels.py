@@ -1,5 +1,6 @@
-"""Numba kernels of the forward-only static-scene path: cell frustum culling and
-projection from cached world-frame covariances, opacities, normals and DC colours."""
+"""Numba kernels of the forward-only static-scene path: cell frustum culling, projection
+of a selected list of cached Gaussians (world covariances, opacities, normals, colours),
+and the image finish. All write into caller-owned (reused) buffers."""
 
 from __future__ import annotations
 
@@ -8,119 +9,159 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._geom import jac_limits, mm3, tr3
+from ._geom import LOWPASS, jac_limits
 from ._sh import sh_color
-from .preprocess import (F_BL, F_G, F_NX, F_NY, F_NZ, F_R, cam_normal, screen_and_box, sigma_cut,
-                         view_parts)
+from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
+                         F_Z, sigma_cut, view_parts)
 
 EDGE_MARGIN_PX = 3.0  # low-pass dilation (<= 1.65 px at 3 sigma) + pixel-centre rounding
 
 
 @njit(cache=True)
-def cull_cells(centers, r_means, rho, view, cam, width, height, near, far):
-    """Indices of cells [C] whose splats may be visible.
-
-    A cell is dropped when all its means are outside [near, far], or when every splat's
-    sigma<=cut ellipsoid (radius rho) lies outside a side plane widened so that the
-    linearised (clamped-Jacobian) projection of such a splat cannot reach the image.
-    """
+def frustum_planes(view, cam, width, height):
+    """(W, tw, side-plane slopes (x+, x-, y+, y-), extent growth factor) for sphere tests."""
     W, tw = view_parts(view)
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lxp, lxn, lyp, lyn = jac_limits(fx, fy, cx, cy, width, height)
     grow = math.sqrt(1.0 + max(lxp, lxn, lyp, lyn) ** 2)
     planes = ((width - cx + EDGE_MARGIN_PX) / fx, (cx + EDGE_MARGIN_PX) / fx,
               (height - cy + EDGE_MARGIN_PX) / fy, (cy + EDGE_MARGIN_PX) / fy)
-    keep = np.empty(centers.shape[0], np.int64)
-    nk = 0
-    for c in range(centers.shape[0]):
-        x, y, z = centers[c, 0], centers[c, 1], centers[c, 2]
-        tx = W[0] * x + W[1] * y + W[2] * z + tw[0]
-        ty = W[3] * x + W[4] * y + W[5] * z + tw[1]
-        tz = W[6] * x + W[7] * y + W[8] * z + tw[2]
-        rm = r_means[c]
-        if tz + rm < near or tz - rm > far:
-            continue
-        ext = rho[c] * grow
-        out = False
-        for q in range(4):
-            a = planes[q]
-            u = tx if q == 0 else (-tx if q == 1 else (ty if q == 2 else -ty))
-            if u - a * tz > rm * math.sqrt(1.0 + a * a) + ext:
-                out = True
-        if not out:
-            keep[nk] = c
-            nk += 1
-    return keep[:nk]
-
-
-@njit(parallel=True, cache=True)
-def project_static(cells, cell_start, row_start, means, cov, opacity, cut, normal_w, rgb, sh, deg,
-                   view, campos, cam, width, height, near, far, cov_alpha, fo, box, radii,
-                   src):
-    """Project the splats of the kept cells; row row_start[j] + k holds splat
-    cell_start[cells[j]] + k. Writes fo/box/radii like project_forward and src (splat index)."""
-    W, tw = view_parts(view)
-    WT = tr3(W)
-    lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
-    for j in prange(cells.shape[0]):
-        c = cells[j]
-        s0 = cell_start[c]
-        for k in range(cell_start[c + 1] - s0):
-            i = s0 + k
-            r_ = row_start[j] + k
-            src[r_] = i
-            radii[r_] = 0
-            mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-            tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-            if not (tz >= near and tz <= far):
-                continue
-            tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-            ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-            S3 = (cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 1], cov[i, 3], cov[i, 4],
-                  cov[i, 2], cov[i, 4], cov[i, 5])
-            Sc = mm3(mm3(W, S3), WT)
-            t = (tx, ty, tz)
-            rad = screen_and_box(t, Sc, opacity[i], cut[i], cam, lims, cov_alpha, width, height, fo,
-                                 r_, box)
-            radii[r_] = rad
-            if rad == 0:
-                continue
-            if deg == 0:
-                fo[r_, F_R] = rgb[i, 0]
-                fo[r_, F_G] = rgb[i, 1]
-                fo[r_, F_BL] = rgb[i, 2]
-            else:
-                vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
-                vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-                cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
-                fo[r_, F_R] = max(cr, 0.0)
-                fo[r_, F_G] = max(cg, 0.0)
-                fo[r_, F_BL] = max(cb, 0.0)
-            Rn = (normal_w[i, 0], 0.0, 0.0, normal_w[i, 1], 0.0, 0.0, normal_w[i, 2], 0.0, 0.0)
-            nx, ny, nz, f = cam_normal(Rn, 0, W, t)
-            fo[r_, F_NX] = nx
-            fo[r_, F_NY] = ny
-            fo[r_, F_NZ] = nz
+    return W, tw, planes, grow
 
 
 @njit(cache=True)
-def compact(fo, box, radii, src):
-    """Rows with radii > 0: (fo [V, NF], box [V, 4], splat index [V]) in row order."""
+def sphere_outside(x, y, z, rm, rho, W, tw, planes, grow, near, far):
+    """True when no splat with mean within rm of (x, y, z) and sigma<=cut extent <= rho can
+    reach the image: all means outside [near, far], or the widened extent is beyond a side
+    plane (so the linearised, clamped-Jacobian projection cannot reach the image)."""
+    tx = W[0] * x + W[1] * y + W[2] * z + tw[0]
+    ty = W[3] * x + W[4] * y + W[5] * z + tw[1]
+    tz = W[6] * x + W[7] * y + W[8] * z + tw[2]
+    if tz + rm < near or tz - rm > far:
+        return True
+    ext = rho * grow
+    for q in range(4):
+        a = planes[q]
+        u = tx if q == 0 else (-tx if q == 1 else (ty if q == 2 else -ty))
+        if u - a * tz > rm * math.sqrt(1.0 + a * a) + ext:
+            return True
+    return False
+
+
+@njit(cache=True)
+def cull_cells(centers, r_means, rho, cell_start, view, cam, width, height, near, far, sel):
+    """Write into sel the splat indices of every cell that may be visible; returns the count."""
+    W, tw, planes, grow = frustum_planes(view, cam, width, height)
     n = 0
-    for r in range(radii.shape[0]):
-        if radii[r] > 0:
+    for c in range(centers.shape[0]):
+        if sphere_outside(centers[c, 0], centers[c, 1], centers[c, 2], r_means[c], rho[c], W,
+                          tw, planes, grow, near, far):
+            continue
+        for i in range(cell_start[c], cell_start[c + 1]):
+            sel[n] = i
             n += 1
-    fo_v = np.empty((n, fo.shape[1]), np.float32)
-    box_v = np.empty((n, 4), np.int32)
-    ids = np.empty(n, np.int64)
-    j = 0
-    for r in range(radii.shape[0]):
-        if radii[r] > 0:
-            fo_v[j] = fo[r]
-            box_v[j] = box[r]
-            ids[j] = src[r]
-            j += 1
-    return fo_v, box_v, ids
+    return n
+
+
+@njit(cache=True)
+def _set_empty(box, r):
+    box[r, 0] = 0
+    box[r, 1] = 0
+    box[r, 2] = -1
+    box[r, 3] = -1
+
+
+@njit(parallel=True, cache=True)
+def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, view, campos,
+                   cam, width, height, near, far, cov_alpha, fo, box, radii):
+    """Project Gaussians sel[:n_sel]; row r holds Gaussian sel[r]: fo [R, NF] (as
+    project_forward), box [R, 4] pixel box (empty, j1 < j0, when it reaches no pixel or is
+    culled) and radii [R] (0 = culled). Same math as preprocess.screen_and_box, with
+    Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
+    W, tw = view_parts(view)
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    lxp, lxn, lyp, lyn = jac_limits(fx, fy, cx, cy, width, height)
+    for r in prange(n_sel):
+        i = sel[r]
+        radii[r] = 0
+        _set_empty(box, r)
+        mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+        if not (tz >= near and tz <= far):
+            continue
+        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+        iz = 1.0 / tz
+        rx = min(max(tx * iz, -lxn), lxp)
+        ry = min(max(ty * iz, -lyn), lyp)
+        j00 = fx * iz
+        j11 = fy * iz
+        j02 = -fx * rx * iz
+        j12 = -fy * ry * iz
+        # rows u, v of J W (2x3)
+        u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
+        v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
+        s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
+        su0 = s00 * u0 + s01 * u1 + s02 * u2
+        su1 = s01 * u0 + s11 * u1 + s12 * u2
+        su2 = s02 * u0 + s12 * u1 + s22 * u2
+        A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
+        B = v0 * su0 + v1 * su1 + v2 * su2
+        C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
+             + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+        det = A * C - B * B
+        if not det > 0.0:
+            continue
+        if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
+            continue
+        px = fx * tx * iz + cx
+        py = fy * ty * iz + cy
+        lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
+        rad = math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
+        if px + rad <= 0.0 or px - rad >= width or py + rad <= 0.0 or py - rad >= height:
+            continue
+        radii[r] = max(rad, 1)
+        ct = cut[i]
+        idet = 1.0 / det
+        fo[r, F_X] = px
+        fo[r, F_Y] = py
+        fo[r, F_A] = C * idet
+        fo[r, F_B] = -B * idet
+        fo[r, F_C] = A * idet
+        fo[r, F_O] = opacity[i]
+        fo[r, F_CUT] = ct
+        fo[r, F_Z] = tz
+        if ct > 0.0:
+            ex = math.sqrt(2.0 * ct * A) * 1.001 + 1e-3
+            ey = math.sqrt(2.0 * ct * C) * 1.001 + 1e-3
+            j0 = max(math.ceil(px - ex - 0.5), 0)
+            j1 = min(math.floor(px + ex - 0.5), width - 1)
+            i0 = max(math.ceil(py - ey - 0.5), 0)
+            i1 = min(math.floor(py + ey - 0.5), height - 1)
+            if j0 <= j1 and i0 <= i1:
+                box[r, 0] = j0
+                box[r, 1] = i0
+                box[r, 2] = j1
+                box[r, 3] = i1
+        if deg == 0:
+            fo[r, F_R] = rgb[i, 0]
+            fo[r, F_G] = rgb[i, 1]
+            fo[r, F_BL] = rgb[i, 2]
+        else:
+            vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
+            vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+            cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
+            fo[r, F_R] = max(cr, 0.0)
+            fo[r, F_G] = max(cg, 0.0)
+            fo[r, F_BL] = max(cb, 0.0)
+        nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
+        cnx = W[0] * nx + W[1] * ny + W[2] * nz
+        cny = W[3] * nx + W[4] * ny + W[5] * nz
+        cnz = W[6] * nx + W[7] * ny + W[8] * nz
+        f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
+        fo[r, F_NX] = f * cnx
+        fo[r, F_NY] = f * cny
+        fo[r, F_NZ] = f * cnz
 
 
 @njit(cache=True)
@@ -148,18 +189,18 @@ def finish_images(color, alpha, depth_acc, normal_acc, bg, rgb, depth, normal):
 
 
 @njit(cache=True)
-def scatter_visible(fo_v, ids, index, radii, num, means2d, radii_out):
-    """means2d [num, 2] / radii_out [num] in model order from the projected rows."""
+def scatter_visible(fo, sel, n_sel, radii, index, num, means2d, radii_out):
+    """means2d [num, 2] / radii_out [num] in model order from rows r < n_sel with
+    radii > 0 and sel[r] < len(index) (merged LOD Gaussians have no model index)."""
     means2d[:] = 0.0
     radii_out[:] = 0
-    j = 0
-    for r in range(radii.shape[0]):
-        if radii[r] > 0:
-            m = index[ids[j]]
-            means2d[m, 0] = fo_v[j, 0]
-            means2d[m, 1] = fo_v[j, 1]
+    K = index.shape[0]
+    for r in range(n_sel):
+        if radii[r] > 0 and sel[r] < K:
+            m = index[sel[r]]
+            means2d[m, 0] = fo[r, F_X]
+            means2d[m, 1] = fo[r, F_Y]
             radii_out[m] = radii[r]
-            j += 1
 
 
 @njit(cache=True)
