@@ -27,6 +27,7 @@ HALF = F32(0.5)
 ZERO = F32(0.0)
 NL = 14  # packed per-splat columns F_X .. F_NZ
 MAX_TILE = 64  # tile rows carry a 64-bit mask of terminated pixels
+ALL_BITS = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
 def kernel_tile(tile_size: int) -> int:
@@ -68,7 +69,7 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
         o, cut = g[k, F_O], g[k, F_CUT]
         if bx1 <= bx0:
             continue
-        span = ((np.uint64(1) << np.uint64(bx1 - bx0)) - np.uint64(1)) << np.uint64(bx0 - x0)
+        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
         for py in range(by0, by1):
             if rmask[py - y0] & span == span:
                 continue  # every pixel of this row's span has terminated
