@@ -68,7 +68,7 @@ def test_lod_merges_distant_splats_with_small_error():
     cam = robot_camera(128, 72, x=-29.0)
     st = RasterSettings(128, 72, active_sh_degree=0)
     ex = StaticScene(street).render(cam, st)
-    scene = StaticScene(street, StaticSceneConfig(lod=True, lod_pixel_radius=2.0))
+    scene = StaticScene(street, StaticSceneConfig(lod=True, lod_pixel_radius=0.5))
     out = scene.render(cam, st)
     assert scene.lod is not None and len(scene.lod.opacity) > 0
     # merged nodes have no model index (radii 0): most distant splats went into nodes

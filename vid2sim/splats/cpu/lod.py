@@ -6,8 +6,9 @@ weights w_i = o_i a_i (opacity x footprint a_i = product of the two largest scal
 moment-matched mean and covariance, w-weighted SH coefficients, shortest covariance axis
 as normal, and opacity min(0.99, sum o_i a_i / A, 1 - prod(1 - o_i)) with A the footprint
 of the merged covariance (so the integrated alpha is kept where members do not overlap).
-Per view, `select_lod` walks the tree top-down and emits a node's merged Gaussian once the
-node (member spread + member extent) projects below `pixel_radius` px, else its children.
+Per view, `select_lod` walks the tree top-down and emits a node's merged Gaussian once its
+standard deviation (sqrt of the largest eigenvalue of the merged covariance), seen from the
+nearest member mean, projects below `pixel_radius` px; otherwise it descends to the children.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ class LodTree:
     nchild [M] int64   number of children (contiguous)
     center [M, 3], r_means [M]  bounding sphere of the member means
     rho [M]            max sigma<=cut extent of anything emitted below the node (m)
-    ext [M]            member spread + max member extent (m), for the pixel-size test
+    ext [M]            merged standard deviation (m), for the pixel-size test
     roots [R] int64    Gaussian indices of the top-level nodes
     means [M, 3], cov [M, 6], opacity [M], cut [M], normal [M, 3], rgb [M, 3], sh [M, K, 3]
     """
@@ -75,7 +76,7 @@ def build_lod(codes: np.ndarray, means: np.ndarray, cov6: np.ndarray, opacity: n
              wM=w[:, None] * (cov6 + _sym6(means[:, :, None] * means[:, None, :])),
              wsh=w[:, None] * sh.reshape(K, -1).astype(np.float64),
              oa=opacity * area, l1o=np.log1p(-np.minimum(opacity, 0.999999)),
-             lo=means.copy(), hi=means.copy(), rho=rho.copy(), rsplat=rho.copy())
+             lo=means.copy(), hi=means.copy(), rho=rho.copy())
     starts_prev = np.arange(K)  # element starts (in splat order) of the previous level
     base_prev = 0  # Gaussian index of the previous level's first element (splats: 0)
     parts, child0, nchild, levels_base = [], [], [], []
@@ -86,14 +87,14 @@ def build_lod(codes: np.ndarray, means: np.ndarray, cov6: np.ndarray, opacity: n
         cidx = np.searchsorted(starts_prev, starts)  # first child (previous-level element)
         nc = np.diff(np.r_[cidx, len(starts_prev)])
         S = {k: (np.minimum.reduceat(v, cidx, axis=0) if k == "lo" else
-                 np.maximum.reduceat(v, cidx, axis=0) if k in ("hi", "rho", "rsplat") else
+                 np.maximum.reduceat(v, cidx, axis=0) if k in ("hi", "rho") else
                  np.add.reduceat(v, cidx, axis=0)) for k, v in S.items()}
         g = _merge(S, c0, sh.shape[1:])
         S["rho"] = np.maximum(S["rho"], g["rho_self"])
         g["rho"] = S["rho"]
         g["child0"] = cidx + base_prev
         g["nchild"] = nc
-        g["ext"] = g["r_means"] + S["rsplat"]
+        g["ext"] = g["sigma"]
         parts.append(g)
         starts_prev, base_prev = starts, base
         base += len(starts)
@@ -123,7 +124,8 @@ def _merge(S: dict, c0: float, sh_shape: tuple) -> dict:
     return dict(means=mu, cov=cov6, opacity=opacity, normal=evecs[:, :, 0],
                 rgb=np.clip(c0 * sh[:, 0] + 0.5, 0.0, None), sh=sh, center=center,
                 r_means=0.5 * np.linalg.norm(S["hi"] - S["lo"], axis=1),
-                rho_self=np.sqrt(2.0 * np.clip(cut, 0.0, None) * evals[:, 2]))
+                rho_self=np.sqrt(2.0 * np.clip(cut, 0.0, None) * evals[:, 2]),
+                sigma=np.sqrt(evals[:, 2]))
 
 
 @njit(cache=True)
@@ -146,7 +148,7 @@ def select_lod(K, child0, nchild, center, r_means, rho, ext, roots, view, cam, c
         if sphere_outside(x, y, z, r_means[m], rho[m], W, tw, planes, grow, near, far):
             continue
         dx, dy, dz = x - campos[0], y - campos[1], z - campos[2]
-        dist = np.sqrt(dx * dx + dy * dy + dz * dz) - r_means[m] - rho[m]
+        dist = np.sqrt(dx * dx + dy * dy + dz * dz) - r_means[m]
         if dist > 0.0 and f * ext[m] <= pixel_radius * dist:
             sel[n] = g
             n += 1

@@ -29,12 +29,11 @@ from ..sh import C0
 from ..types import RasterOutput, RasterSettings, RenderOutput
 from .binning import sort_and_bin
 from .function import camera_arrays
-from .lod import LodTree, build_lod
+from .lod import LodTree, build_lod, select_lod
 from .preprocess import NF
 from .raster import kernel_tile, raster_forward
 from .static_kernels import (cull_cells, finish_images, project_static, scatter_visible,
                              sigma_cuts)
-from .lod import select_lod
 
 ALPHA_MIN = 1.0 / 255.0
 
@@ -43,15 +42,16 @@ ALPHA_MIN = 1.0 / 255.0
 class StaticSceneConfig:
     """cell_size: splats per culling cell (Morton-ordered runs).
 
-    lod: env level of detail (approximate; off = exact contract). lod_pixel_radius: a node is
-    drawn as its merged Gaussian once (member spread + extent) projects below this many px.
+    lod: env level of detail (approximate; off = exact contract). lod_pixel_radius: an octree
+    node is drawn as its one merged Gaussian once its standard deviation projects below this
+    many px (0.3: ~36 dB PSNR vs exact on the benchmark street; 0 = no merging).
     per_splat_outputs: fill raw.means2d / raw.radii ([N] model order); False leaves them
     0-size (saves writing O(N) per frame when nobody reads them).
     """
 
     cell_size: int = 256
     lod: bool = False
-    lod_pixel_radius: float = 1.0
+    lod_pixel_radius: float = 0.3
     per_splat_outputs: bool = True
 
 
