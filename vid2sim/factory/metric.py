@@ -43,11 +43,12 @@ class MetricConfig:
     gps_csv: str = ""  # GoPro GPS5 CSV (t_approx_s, lat_deg, lon_deg, speed2d_mps, gps_fix)
     known_path_length_m: float = 0.0  # walked distance from any telemetry (path_length source)
     lower_image_fraction: float = 0.5  # ground candidates: observed in the lower part of images
-    max_tilt_deg: float = 35.0  # plane normal within this of the cameras' mean up direction
+    max_tilt_deg: float = 15.0  # plane normal within this of the up prior (see up_prior)
     inlier_frac_of_height: float = 0.03  # RANSAC threshold = this x rough camera height
     corridor_frac_of_height: float = 3.0  # keep points within this x height of the path (sideways)
     local_radius_frac: float = 4.0  # camera height measured on ground points within this x height
     ransac_iters: int = 2000
+    below_penalty: float = 2.0  # RANSAC prefers the lowest supported plane (see ransac_plane)
     min_ground_points: int = 30
     holdout_every: int = 8
     fallback_fps: float = 10.0  # timestamps = index / fps when no frames.parquet exists
@@ -64,8 +65,13 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def ransac_plane(points: np.ndarray, up: np.ndarray, threshold: float, max_tilt_deg: float,
-                 iters: int, seed: int = 0) -> tuple[np.ndarray, float, np.ndarray]:
-    """Robust plane (n, d, inlier mask [N]) with n within `max_tilt_deg` of `up`, refined by LSQ."""
+                 iters: int, seed: int = 0, below_penalty: float = 0.0
+                 ) -> tuple[np.ndarray, float, np.ndarray]:
+    """Robust plane (n, d, inlier mask [N]) with n within `max_tilt_deg` of `up`, refined by LSQ.
+
+    Score = inliers - below_penalty x points more than 3 thresholds below the plane: the ground
+    is the lowest well-supported surface (low plants, kerbs and car bodies lie above it).
+    """
     rng = np.random.default_rng(seed)
     tri = points[rng.integers(0, len(points), size=(iters, 3))]  # [I, 3, 3]
     normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # [I, 3]
@@ -79,8 +85,8 @@ def ransac_plane(points: np.ndarray, up: np.ndarray, threshold: float, max_tilt_
     best, best_count = None, -1
     for chunk in range(0, len(normals), 256):
         n, a = normals[chunk:chunk + 256], anchors[chunk:chunk + 256]
-        dist = np.abs((points[None] - a[:, None]) @ n[:, :, None])[..., 0]  # [C, N]
-        counts = (dist < threshold).sum(1)
+        dist = ((points[None] - a[:, None]) @ n[:, :, None])[..., 0]  # [C, N] signed, + = up
+        counts = (np.abs(dist) < threshold).sum(1) - below_penalty * (dist < -3 * threshold).sum(1)
         i = int(counts.argmax())
         if counts[i] > best_count:
             best, best_count = (n[i], float(-n[i] @ a[i])), int(counts[i])
@@ -100,6 +106,31 @@ def rotation_to_world(n: np.ndarray, forward: np.ndarray) -> np.ndarray:
         f = np.cross(n, [1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.cross(n, [0.0, 1.0, 0.0])
     x = f / np.linalg.norm(f)
     return np.stack([x, np.cross(n, x), n])
+
+
+def up_prior(c2w: np.ndarray, max_gap_deg: float = 30.0) -> tuple[np.ndarray, str]:
+    """Up direction prior from the cameras [N, 4, 4]: unit vector and how it was made.
+
+    A walker moves along the ground and holds the camera without lasting roll, so up is
+    perpendicular to the walking direction (first principal axis of the path) and to the mean
+    camera right axis: up = right x forward. (On the GoPro clip this is 1.4 deg from the IMU
+    gravity, while the mean camera -y axis is 7 deg off, since the camera is pitched down.)
+    Falls back to the mean camera -y axis for a short path or when the two disagree.
+    """
+    cam_up = -c2w[:, :3, 1].mean(0)
+    cam_up /= np.linalg.norm(cam_up)
+    centers = c2w[:, :3, 3]
+    span = np.linalg.svd(centers - centers.mean(0), full_matrices=False)
+    fwd = span[2][0] * np.sign(span[2][0] @ c2w[:, :3, 2].mean(0))
+    right = c2w[:, :3, 0].mean(0)
+    up = np.cross(right, fwd)
+    if span[1][0] < 1e-9 or np.linalg.norm(up) < 0.5 * np.linalg.norm(right):
+        return cam_up, "camera_minus_y"
+    up /= np.linalg.norm(up)
+    up *= np.sign(up @ cam_up) or 1.0
+    if angle_deg(up, cam_up) > max_gap_deg:
+        return cam_up, "camera_minus_y"
+    return up, "right_x_walk"
 
 
 def corridor(pts: np.ndarray, centers: np.ndarray, up: np.ndarray,
@@ -252,8 +283,7 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
     """Sim(3) (s, R, t) taking SfM coords to the metric world: x' = s R x + t; plus facts."""
     names, c2w = camera_arrays(rec)
     centers = c2w[:, :3, 3]  # [N, 3]
-    up = -c2w[:, :3, 1].mean(0)
-    up /= np.linalg.norm(up)
+    up, up_source = up_prior(c2w)
     ids = ground_candidates(rec, masks, centers, up, conf)
     if len(ids) < conf.min_ground_points:
         raise StageError(STAGE, "no_ground_plane",
@@ -263,7 +293,7 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
     if len(pts) < conf.min_ground_points:
         raise StageError(STAGE, "no_ground_plane", f"only {len(pts)} SfM points along the path")
     n, d, inl = ransac_plane(pts, up, conf.inlier_frac_of_height * rough_h, conf.max_tilt_deg,
-                             conf.ransac_iters, conf.seed)
+                             conf.ransac_iters, conf.seed, conf.below_penalty)
     heights = local_heights(centers, pts[inl], n, d, conf.local_radius_frac * rough_h)  # [N]
     if np.median(heights) <= 0 or inl.sum() < conf.min_ground_points:
         raise StageError(STAGE, "no_ground_plane",
@@ -279,7 +309,7 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
         "plane_candidates": int(len(ids)), "plane_inliers": int(inl.sum()),
         "plane_residual_rms_m": float(np.sqrt((res ** 2).mean())),
         "plane_residual_median_m": float(np.median(res)),
-        "gravity_prior_angle_deg": angle_deg(n, up),
+        "gravity_prior_angle_deg": angle_deg(n, up), "gravity_prior": up_source,
         "camera_height_m": {"median": float(np.median(heights) * s),
                             "p10": float(np.percentile(heights, 10) * s),
                             "p90": float(np.percentile(heights, 90) * s)},
