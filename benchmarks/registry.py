@@ -5,7 +5,10 @@
 Steps: (1) N single `add`s of small real bundles (300 Gaussians) into an empty registry;
 (2) bulk-create ROWS scene rows with batched appends (rows reuse real blobs, so verify holds);
 (3) list / split / query latency over ROWS scenes, cold (fresh handle) and warm;
-(4) single-commit latency (tag, add) with ROWS scenes present, before and after `compact()`.
+(4) single-commit latency (tag, add) with ROWS scenes present, before and after `compact()`
+    (steps 1-4 with automatic compaction off, to show what it saves);
+(5) --sustained tag commits in a row from the compacted table, automatic compaction off vs on
+    (default threshold: RegistryConfig.auto_compact_files).
 """
 
 from __future__ import annotations
@@ -67,16 +70,35 @@ def bulk_rows(template, n: int, start: int) -> list[dict]:
     return rows
 
 
+def sustained(root: Path, n: int, config_cls) -> None:
+    """n tag commits in a row on a compacted table, automatic compaction off vs on."""
+    from vid2sim.registry.store import Registry
+
+    for label, conf in (("off", config_cls(auto_compact_files=0)), ("on ", config_cls())):
+        reg = Registry(root, config=conf)
+        reg.compact()
+        v0, lat = reg.version, []
+        for i in range(n):
+            t = time.perf_counter()
+            reg.tag("bulk-000002", f"s{label.strip()}{i}")
+            lat.append(time.perf_counter() - t)
+        compactions = reg.version - v0 - n
+        print(f"{n} tag commits, auto-compaction {label}:     {stats(lat)}  max {max(lat) * 1e3:6.0f} ms  "
+              f"last 10 median {statistics.median(lat[-10:]) * 1e3:6.1f} ms  "
+              f"({compactions} compactions, {reg.manifest.num_files()} files at the end)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--adds", type=int, default=40)
     ap.add_argument("--rows", type=int, default=10_000)
     ap.add_argument("--batch", type=int, default=500)
+    ap.add_argument("--sustained", type=int, default=120, help="tag commits in a row for step 5")
     ap.add_argument("--root", default=None, help="registry folder (default: a temp dir, removed after)")
     args = ap.parse_args()
     from registry_fixtures import make_bundle
 
-    from vid2sim.registry import Registry
+    from vid2sim.registry.store import Registry, RegistryConfig
 
     tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-"))
     root = Path(args.root) if args.root else tmp / "reg"
@@ -84,7 +106,8 @@ def main() -> None:
     print(f"command:  {' '.join([Path(sys.executable).name, *sys.argv])}")
     try:
         bundles = [make_bundle(tmp / f"b{i}", f"bench-{i:04d}", group=f"g{i % 7}", seed=i) for i in range(args.adds + 20)]
-        reg = Registry(root)
+        manual = RegistryConfig(auto_compact_files=0)
+        reg = Registry(root, config=manual)
         adds = [b for b in bundles[:args.adds]]
         lat = []
         for b in adds:
@@ -105,7 +128,7 @@ def main() -> None:
               f"(registry version {reg.version})")
 
         def cold_list():
-            assert len(Registry(root).list()) >= args.rows
+            assert len(Registry(root, config=manual).list()) >= args.rows
 
         names = iter(range(10**6))
         more = iter(bundles[args.adds:])
@@ -126,6 +149,7 @@ def main() -> None:
                 t = time.perf_counter()
                 reg.compact()
                 print(f"compact(): {time.perf_counter() - t:.1f} s")
+        sustained(root, args.sustained, RegistryConfig)
         t = time.perf_counter()
         problems = reg.verify()
         print(f"verify ({len(reg.referenced())} blobs): {time.perf_counter() - t:.2f} s, problems: {len(problems)}")
