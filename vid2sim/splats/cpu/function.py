@@ -65,7 +65,7 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     n_contrib = np.empty((height, width), np.int32)
     med_idx = np.empty((height, width), np.int32)
     raster_forward(fo, box, offsets, inst, width, height, tile, color, alpha, depth, normal,
-                   median, T_final, n_contrib, med_idx)
+                   median, T_final, n_contrib, med_idx, numba.get_num_threads())
     return offsets, inst, color, alpha, depth, normal, median, T_final, n_contrib, med_idx
 
 
@@ -122,16 +122,20 @@ class _Rasterize(torch.autograd.Function):
                              kernel_tile(setup.settings.tile_size), fr.T_final, fr.n_contrib, fr.med_idx,
                              d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
                              numba.get_num_threads())
-        N = means.shape[0]
         out = [np.zeros_like(a) for a in (means, quats, log_scales, logits, sh)]
-        grad2d = np.zeros((N, 2), np.float32)
-        absgrad = np.zeros((N, 2), np.float32)
+        # grad2d / absgrad: the kernel adds straight into the caller's float32 buffers
+        direct = setup.grad2d.dtype == torch.float32
+        grad2d = setup.grad2d.numpy() if direct else np.zeros(setup.grad2d.shape, np.float32)
+        want_abs = setup.absgrad is not None
+        absgrad = (setup.absgrad.numpy() if direct and want_abs
+                   else np.zeros(setup.grad2d.shape, np.float32))
         view, campos, cam = camera_arrays(setup.camera)
         project_backward(fr.ids, means, quats, log_scales, logits, sh, setup.deg, view, campos,
-                         cam, W, H, g2, *out, grad2d, absgrad, setup.absgrad is not None)
-        setup.grad2d.add_(torch.from_numpy(grad2d).to(setup.grad2d.dtype))
-        if setup.absgrad is not None:
-            setup.absgrad.add_(torch.from_numpy(absgrad).to(setup.absgrad.dtype))
+                         cam, W, H, g2, *out, grad2d, absgrad, want_abs)
+        if not direct:
+            setup.grad2d.add_(torch.from_numpy(grad2d).to(setup.grad2d.dtype))
+            if want_abs:
+                setup.absgrad.add_(torch.from_numpy(absgrad).to(setup.absgrad.dtype))
         dt = setup.dtype
         return (*(torch.from_numpy(a).to(dt) for a in out), None)
 
@@ -144,6 +148,14 @@ class _Setup:
     grad2d: torch.Tensor
     absgrad: torch.Tensor | None
     dtype: torch.dtype
+
+
+def _zeros2(n: int, dt: torch.dtype) -> torch.Tensor:
+    """Zero [n, 2] tensor; float32 via numpy (avoids a torch OpenMP region whose spinning
+    workers would compete with the numba threads)."""
+    if dt == torch.float32:
+        return torch.from_numpy(np.zeros((n, 2), np.float32))
+    return torch.zeros(n, 2, dtype=dt)
 
 
 def check_inputs(means, quats, log_scales, opacity_logits, sh, camera, settings) -> None:
@@ -171,8 +183,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     check_inputs(means, quats, log_scales, opacity_logits, sh, camera, settings)
     dt, N = means.dtype, means.shape[0]
     deg = min(settings.active_sh_degree, sh_degree_from_coeffs(sh.shape[1]))
-    setup = _Setup(camera, settings, deg, means.new_zeros(N, 2),
-                   means.new_zeros(N, 2) if absgrad else None, dt)
+    setup = _Setup(camera, settings, deg, _zeros2(N, dt), _zeros2(N, dt) if absgrad else None, dt)
     color, alpha, depth, normal, median, means2d, radii = _Rasterize.apply(
         means, quats, log_scales, opacity_logits, sh, setup)
     return RasterOutput(color_accum=color, alpha=alpha, depth_accum=depth,

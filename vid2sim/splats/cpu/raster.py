@@ -128,24 +128,26 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
 
 @njit(parallel=True, cache=True)
 def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alpha, depth,
-                   normal, median, T_out, n_contrib, med_idx):
-    """Composite every tile (parallel over tiles); outputs are [H, W(, 3)] arrays."""
+                   normal, median, T_out, n_contrib, med_idx, n_workers=1):
+    """Composite every tile; outputs are [H, W(, 3)] arrays. Tiles are dealt round-robin to
+    n_workers parallel workers (interleaved rows balance sky / ground tiles)."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     if tile > MAX_TILE:
-        raise ValueError(f"cpu raster: tile {tile} > {MAX_TILE} (use kernel_tile())")
-    for t in prange(n_tiles):
-        s = tile_offsets[t]
-        n = tile_offsets[t + 1] - s
-        x0 = (t % tiles_x) * tile
-        y0 = (t // tiles_x) * tile
-        x1 = min(x0 + tile, width)
-        y1 = min(y0 + tile, height)
-        g = np.empty((max(n, 1), NL), np.float32)
-        gb = np.empty((max(n, 1), 4), np.int32)
-        gather(fo, box, inst, s, n, g, gb)
-        _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
-                      n_contrib, med_idx)
+        raise ValueError("cpu raster: tile larger than MAX_TILE (use kernel_tile())")
+    for h in prange(n_workers):
+        for t in range(h, n_tiles, n_workers):
+            s = tile_offsets[t]
+            n = tile_offsets[t + 1] - s
+            x0 = (t % tiles_x) * tile
+            y0 = (t // tiles_x) * tile
+            x1 = min(x0 + tile, width)
+            y1 = min(y0 + tile, height)
+            g = np.empty((max(n, 1), NL), np.float32)
+            gb = np.empty((max(n, 1), 4), np.int32)
+            gather(fo, box, inst, s, n, g, gb)
+            _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
+                          T_out, n_contrib, med_idx)
 
 
 @njit(cache=True)

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
+import numba
 import numpy as np
 import torch
 
@@ -184,7 +185,7 @@ class StaticScene:
         color, normal_acc, rgb, normal = (np.empty((H, W, 3), np.float32) for _ in range(4))
         alpha, depth_acc, median, depth = (np.empty((H, W), np.float32) for _ in range(4))
         raster_forward(fo, box, offsets, inst, W, H, tile, color, alpha, depth_acc, normal_acc,
-                       median, self._T, self._nc, self._mi)
+                       median, self._T, self._nc, self._mi, numba.get_num_threads())
         bg = np.asarray(torch.as_tensor(background, dtype=torch.float32).reshape(3).numpy(),
                         np.float32)
         finish_images(color, alpha, depth_acc, normal_acc, bg, rgb, depth, normal)
