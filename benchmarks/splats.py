@@ -25,8 +25,8 @@ import numba  # noqa: E402
 import torch  # noqa: E402
 
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig, rasterize  # noqa: E402
-from vid2sim.splats.cpu.synthetic import (front_camera, random_blob_scene, robot_camera,  # noqa: E402
-                                          street_scene)
+from vid2sim.splats.cpu.synthetic import (  # noqa: E402
+    front_camera, random_blob_scene, robot_camera, street_scene)
 from vid2sim.splats.reference import rasterize as ref_rasterize  # noqa: E402
 from vid2sim.splats.types import RasterSettings  # noqa: E402
 

@@ -119,7 +119,8 @@ class _Rasterize(torch.autograd.Function):
                                                else _np32(g)
                                                for g in (d_alpha, d_depth, d_median))
         g2 = raster_backward(fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
-                             kernel_tile(setup.settings.tile_size), fr.T_final, fr.n_contrib, fr.med_idx,
+                             kernel_tile(setup.settings.tile_size), fr.T_final, fr.n_contrib,
+                             fr.med_idx,
                              d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
                              numba.get_num_threads())
         out = [np.zeros_like(a) for a in (means, quats, log_scales, logits, sh)]

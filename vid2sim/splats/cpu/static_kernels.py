@@ -101,7 +101,8 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
         # rows u, v of J W (2x3)
         u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
         v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
-        s00, s01, s02, s11, s12, s22 = cov[i, 0], cov[i, 1], cov[i, 2], cov[i, 3], cov[i, 4], cov[i, 5]
+        s00, s01, s02 = cov[i, 0], cov[i, 1], cov[i, 2]
+        s11, s12, s22 = cov[i, 3], cov[i, 4], cov[i, 5]
         su0 = s00 * u0 + s01 * u1 + s02 * u2
         su1 = s01 * u0 + s11 * u1 + s12 * u2
         su2 = s02 * u0 + s12 * u1 + s22 * u2
