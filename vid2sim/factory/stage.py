@@ -69,6 +69,7 @@ def mark_done(out_dir: Path, stage: str, key: str, summary: dict, seconds: float
     fd, tmp = tempfile.mkstemp(dir=out_dir, prefix=".stage-", suffix=".json")
     with os.fdopen(fd, "w") as f:
         json.dump(to_jsonable(rec), f, indent=2)
+    os.chmod(tmp, 0o644)  # mkstemp creates 0600
     os.replace(tmp, out_dir / MARKER)
     return rec
 
