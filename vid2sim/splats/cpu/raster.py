@@ -67,6 +67,9 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
         mx, my = g[k, F_X], g[k, F_Y]
         ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
         o, cut = g[k, F_O], g[k, F_CUT]
+        # hoisted: stores into acc could alias g as far as the compiler knows
+        c0, c1, c2, c3 = g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z]
+        c4, c5, c6 = g[k, F_NX], g[k, F_NY], g[k, F_NZ]
         if bx1 <= bx0:
             continue
         span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
@@ -95,13 +98,13 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
                     continue
                 w = al * Tp
                 a = acc[p]
-                a[0] += w * g[k, F_R]
-                a[1] += w * g[k, F_G]
-                a[2] += w * g[k, F_BL]
-                a[3] += w * g[k, F_Z]
-                a[4] += w * g[k, F_NX]
-                a[5] += w * g[k, F_NY]
-                a[6] += w * g[k, F_NZ]
+                a[0] += w * c0
+                a[1] += w * c1
+                a[2] += w * c2
+                a[3] += w * c3
+                a[4] += w * c4
+                a[5] += w * c5
+                a[6] += w * c6
                 if med[p] < 0 and Tn <= T_MED:
                     med[p] = k
                 T[p] = Tn
