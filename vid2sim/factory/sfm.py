@@ -44,12 +44,14 @@ class SfMConfig:
 
     max_image_size: int = 848  # SIFT runs on frames downscaled to this longest side
     max_num_features: int = 4096
+    first_octave: int = -1  # -1: SIFT on a 2x upsampled image (more small features, ~3x slower)
     overlap: int = 10  # sequential matching window
     quadratic_overlap: bool = True  # also match i +- 2^k (a stand-in for loop closure)
     loop_detection: bool = False  # needs vocab_tree_path (a local file; never downloaded)
     vocab_tree_path: str = ""
     mapper: str = "global"  # "global" (GLOMAP) | "incremental"
     fallback_incremental: bool = True  # rerun incrementally if global registers too few
+    retriangulate: bool = True  # global mapper's final retriangulation + refinement pass
     camera_model: str = "auto"  # auto | OPENCV | OPENCV_FISHEYE | SIMPLE_RADIAL | PINHOLE ...
     camera_params: list[float] = field(default_factory=list)  # known intrinsics (COLMAP order)
     refine_intrinsics: Optional[bool] = None  # None: refine unless camera_params are given
@@ -65,8 +67,10 @@ class SfMConfig:
     @classmethod
     def preset(cls, name: str, **overrides: Any) -> "SfMConfig":
         presets = {
-            "fast": dict(max_image_size=848, max_num_features=4096, overlap=10),
-            "accurate": dict(max_image_size=1600, max_num_features=8192, overlap=20),
+            "fast": dict(max_image_size=848, max_num_features=4096, first_octave=0, overlap=10,
+                         retriangulate=False),
+            "accurate": dict(max_image_size=1600, max_num_features=8192, first_octave=-1,
+                             overlap=20, retriangulate=True),
         }
         if name not in presets:
             raise ValueError(f"unknown SfM preset {name!r}; choose from {sorted(presets)}")
@@ -165,6 +169,7 @@ def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
     eo.num_threads = conf.num_threads
     eo.use_gpu = False
     eo.sift.max_num_features = conf.max_num_features
+    eo.sift.first_octave = conf.first_octave
     pycolmap.extract_features(db, images_dir, image_names=names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=ro,
                               extraction_options=eo, device=pycolmap.Device.cpu)
@@ -228,6 +233,7 @@ def map_global(conf: SfMConfig, db: Path, images_dir: Path, out: Path) -> dict:
     ba.refine_focal_length = ba.refine_extra_params = intrinsics_refined(conf)
     ba.ceres.use_gpu = False
     o.mapper.global_positioning.use_gpu = False
+    o.mapper.skip_retriangulation = not conf.retriangulate
     return pycolmap.global_mapping(db, images_dir, out, o)
 
 
