@@ -7,6 +7,7 @@ RasterOutput are filled (added into) by backward, as docs/splat_renderer.md spec
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numba
@@ -69,17 +70,30 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     return offsets, inst, color, alpha, depth, normal, median, T_final, n_contrib, med_idx
 
 
+_SCRATCH = threading.local()
+
+
+def _scratch(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-thread (idx [n] = 0..n-1, fo [n, NF], box [n, 4]) reused across forwards: the
+    full-N projection rows are only read until the visible rows are copied out."""
+    cur = getattr(_SCRATCH, "bufs", None)
+    if cur is None or cur[0].shape[0] != n:
+        cur = (np.arange(n, dtype=np.int64), np.empty((n, NF), np.float32),
+               np.empty((n, 4), np.int32))
+        _SCRATCH.bufs = cur
+    return cur
+
+
 def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera,
                   settings: RasterSettings) -> Frame:
     """Run the whole forward on float32 numpy inputs."""
     view, campos, cam = camera_arrays(camera)
     W, H, tile = settings.width, settings.height, kernel_tile(settings.tile_size)
     N = means.shape[0]
-    fo = np.empty((N, NF), np.float32)
-    box = np.empty((N, 4), np.int32)
+    idx, fo, box = _scratch(N)
     radii = np.empty(N, np.int32)
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
-    project_forward(np.arange(N, dtype=np.int64), means, quats, log_scales, logits, sh, deg,
+    project_forward(idx, means, quats, log_scales, logits, sh, deg,
                     view, campos, cam, W, H, float(settings.near), float(settings.far),
                     cov_alpha, fo, box, radii)
     ids = np.flatnonzero(radii)
