@@ -89,3 +89,16 @@ def test_bad_inputs_are_named(toy, tmp_path):
     with pytest.raises(StageError, match="no_sparse_points"):
         main(tiny_conf(), bad, tmp_path / "out2")
     assert not (tmp_path / "out2" / "stage.json").exists()
+
+
+def test_cli_recon_run(toy, tmp_path):
+    from typer.testing import CliRunner
+
+    from vid2sim.cli import app
+
+    res = CliRunner().invoke(app, ["recon", "run", str(toy), str(tmp_path / "cli"), "--baseline",
+                                   "--iterations", "8", "--json"])
+    assert res.exit_code == 0, res.output
+    m = json.loads(res.output[res.output.index("{"):])
+    assert m["prior"] == "none" and m["geometry"] is False and m["iterations"] == 8
+    assert math.isfinite(m["psnr"])

@@ -25,6 +25,8 @@ def _register_subapps() -> None:
     app.add_typer(sfm_app, name="sfm")
     from vid2sim.factory.cli_ingest import ingest_command
     app.command("ingest")(ingest_command)
+    from vid2sim.factory.recon.cli import app as recon_app
+    app.add_typer(recon_app, name="recon")
 
 
 @app.command()

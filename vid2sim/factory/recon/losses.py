@@ -133,24 +133,24 @@ def normals_from_depth_pca(depth: torch.Tensor, K: torch.Tensor, window: int = 5
     depth [H, W], K [3, 3], valid [H, W] -> normals [H, W, 3] (unit; 0 where invalid), ok [H, W] bool.
     """
     h, w = depth.shape
-    depth = depth.to(torch.float64)
+    depth = depth.to(torch.float32)
     if valid is None:
         valid = depth > 0
     valid = valid & (depth > 0)
-    pts = backproject(depth, K.to(torch.float64))  # [H, W, 3]
+    pts = backproject(depth, K.to(torch.float32))  # [H, W, 3]
     pad = window // 2
     unf = lambda t: F.unfold(t.permute(2, 0, 1)[None], window, padding=pad)[0]  # [C*k2, HW]
     k2 = window * window
-    nb = unf(pts).reshape(3, k2, h * w)  # [3, k2, HW]
+    nb = unf(pts).reshape(3, k2, h * w) - pts.reshape(-1, 3).T[:, None]  # [3, k2, HW] centre-relative
     nb_d = unf(depth[..., None]).reshape(k2, h * w)
-    nb_ok = unf(valid[..., None].to(torch.float64)).reshape(k2, h * w) > 0
+    nb_ok = unf(valid[..., None].to(torch.float32)).reshape(k2, h * w) > 0
     centre = depth.reshape(-1)
-    wgt = (nb_ok & ((nb_d - centre).abs() <= rel_tol * centre)).to(torch.float64)  # [k2, HW]
+    wgt = (nb_ok & ((nb_d - centre).abs() <= rel_tol * centre)).to(torch.float32)  # [k2, HW]
     cnt = wgt.sum(0)  # [HW]
     mean = (nb * wgt).sum(1) / cnt.clamp_min(1)  # [3, HW]
     diff = (nb - mean[:, None]) * wgt.sqrt()  # [3, k2, HW]
     cov = torch.einsum("akp,bkp->pab", diff, diff) / cnt.clamp_min(1)[:, None, None]  # [HW, 3, 3]
-    cov = cov + torch.eye(3, dtype=cov.dtype) * 1e-12
+    cov = cov + torch.eye(3, dtype=cov.dtype) * 1e-10 * centre[:, None, None] ** 2
     _, vecs = torch.linalg.eigh(cov)
     n = vecs[:, :, 0]  # [HW, 3] smallest-eigenvalue direction
     flip = (n * pts.reshape(-1, 3)).sum(-1) > 0
