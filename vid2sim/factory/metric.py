@@ -31,7 +31,6 @@ from scipy.spatial import cKDTree
 from vid2sim.factory.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.posed import PosedClip, PosedFrame, holdout_split
 from vid2sim.factory.stage import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
-from vid2sim.versioning import to_jsonable
 
 STAGE = "metric"
 
