@@ -147,7 +147,7 @@ def fast() -> ReconConfig:
         # weights 1 (paper) cost ~1-2 dB held-out PSNR, these keep the depth gain (see
         # benchmarks/reconstruction.py). The `paper` preset keeps the paper's weights of 1.
         loss=LossConfig(geometry_from_iter=300, ncc_patch=8, ncc_stride=4,
-                        w_depth=0.1, w_normal=0.02, w_geo=0.1, w_scale=0.02),
+                        w_depth=0.05, w_normal=0.01, w_geo=0.05, w_scale=0.01),
         densify=DensifyConfig(start_iter=300, stop_iter=1500, every=100, opacity_reset_every=1000,
                               max_gaussians=150_000),
         prior=DepthPriorConfig(kind="mvs", num_planes=48, max_width=160),
