@@ -20,7 +20,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -287,16 +287,13 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
     if len(ids) < conf.min_ground_points:
         raise StageError(STAGE, "no_ground_plane",
                          f"only {len(ids)} SfM points below the cameras (need {conf.min_ground_points})")
-    pts = np.array([rec.point3D(int(i)).xyz for i in ids])  # [M, 3]
-    pts, rough_h = corridor(pts, centers, up, conf.corridor_frac_of_height)
-    if len(pts) < conf.min_ground_points:
-        raise StageError(STAGE, "no_ground_plane", f"only {len(pts)} SfM points along the path")
-    n, d, inl = ransac_plane(pts, up, conf.inlier_frac_of_height * rough_h, conf.max_tilt_deg,
-                             conf.ransac_iters, conf.seed, conf.below_penalty)
-    heights = local_heights(centers, pts[inl], n, d, conf.local_radius_frac * rough_h)  # [N]
-    if np.median(heights) <= 0 or inl.sum() < conf.min_ground_points:
-        raise StageError(STAGE, "no_ground_plane",
-                         f"plane with {int(inl.sum())} inliers lies above the cameras or is too thin")
+    all_pts = np.array([rec.point3D(int(i)).xyz for i in ids])  # [M, 3]
+    relaxed = False
+    try:
+        n, d, inl, pts, heights = fit_ground(all_pts, centers, up, conf)
+    except StageError:  # sparse photo sequences: wider corridor, looser inlier band, once
+        relaxed = True
+        n, d, inl, pts, heights = fit_ground(all_pts, centers, up, relax(conf))
     s, source, scale_facts = choose_scale(conf, heights, centers, n)
     R = rotation_to_world(n, centers[-1] - centers[0])
     origin = centers[0] - heights[0] * n  # foot of the first camera on the plane
@@ -305,7 +302,7 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
     facts = {
         "scale_source": source, "scale": s, **scale_facts,
         "plane_sfm": {"normal": n.tolist(), "d": d},
-        "plane_candidates": int(len(ids)), "plane_inliers": int(inl.sum()),
+        "plane_candidates": int(len(ids)), "plane_inliers": int(inl.sum()), "plane_relaxed": relaxed,
         "plane_residual_rms_m": float(np.sqrt((res ** 2).mean())),
         "plane_residual_median_m": float(np.median(res)),
         "gravity_prior_angle_deg": angle_deg(n, up), "gravity_prior": up_source,
@@ -315,6 +312,28 @@ def align(conf: MetricConfig, rec: Any, masks: Optional[Path]) -> tuple[float, n
         "sim3": {"scale": s, "rotation": R.tolist(), "translation": t.tolist()},
     }
     return s, R, t, facts
+
+
+def relax(conf: MetricConfig) -> MetricConfig:
+    """Looser ground search for sparse models (e.g. photos metres apart)."""
+    return replace(conf, corridor_frac_of_height=2 * conf.corridor_frac_of_height,
+                   inlier_frac_of_height=2 * conf.inlier_frac_of_height,
+                   min_ground_points=max(10, conf.min_ground_points * 2 // 3))
+
+
+def fit_ground(all_pts: np.ndarray, centers: np.ndarray, up: np.ndarray, conf: MetricConfig
+               ) -> tuple[np.ndarray, float, np.ndarray, np.ndarray, np.ndarray]:
+    """Plane (n, d), inlier mask, corridor points [M, 3] and camera heights [N] (SfM units)."""
+    pts, rough_h = corridor(all_pts, centers, up, conf.corridor_frac_of_height)
+    if len(pts) < conf.min_ground_points:
+        raise StageError(STAGE, "no_ground_plane", f"only {len(pts)} SfM points along the path")
+    n, d, inl = ransac_plane(pts, up, conf.inlier_frac_of_height * rough_h, conf.max_tilt_deg,
+                             conf.ransac_iters, conf.seed, conf.below_penalty)
+    heights = local_heights(centers, pts[inl], n, d, conf.local_radius_frac * rough_h)  # [N]
+    if np.median(heights) <= 0 or inl.sum() < conf.min_ground_points:
+        raise StageError(STAGE, "no_ground_plane",
+                         f"plane with {int(inl.sum())} inliers lies above the cameras or is too thin")
+    return n, d, inl, pts, heights
 
 
 def apply_sim3(rec: Any, s: float, R: np.ndarray, t: np.ndarray) -> None:
