@@ -18,11 +18,16 @@ import torch.nn.functional as F
 
 # ----------------------------------------------------------------------------- SSIM
 
-def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Normalised 2D Gaussian window [size, size]."""
+def gaussian_window_1d(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Normalised 1D Gaussian [size]."""
     x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
     g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
-    g = g / g.sum()
+    return g / g.sum()
+
+
+def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Normalised 2D Gaussian window [size, size] (outer product of the 1D one)."""
+    g = gaussian_window_1d(size, sigma)
     return g[:, None] * g[None, :]
 
 
@@ -36,16 +41,18 @@ def ssim_map(img1: torch.Tensor, img2: torch.Tensor, window: int = 11, sigma: fl
     c = img1.shape[-1]
     x = img1.permute(2, 0, 1)[None]  # [1, C, H, W]
     y = img2.permute(2, 0, 1)[None]
-    w = gaussian_window(window, sigma).to(x)[None, None].expand(c, 1, window, window)
+    # The Gaussian window is separable: one horizontal and one vertical 1D pass over all
+    # five moment images at once (same result as the 2D window, ~5x fewer operations).
+    g = gaussian_window_1d(window, sigma).to(x)
+    stack = torch.cat([x, y, x * x, y * y, x * y], dim=1)  # [1, 5C, H, W]
+    n = stack.shape[1]
     pad = window // 2 if same else 0
-
-    def filt(t: torch.Tensor) -> torch.Tensor:
-        return F.conv2d(t, w, padding=pad, groups=c)
-
-    mu_x, mu_y = filt(x), filt(y)
-    sxx = filt(x * x) - mu_x ** 2
-    syy = filt(y * y) - mu_y ** 2
-    sxy = filt(x * y) - mu_x * mu_y
+    out = F.conv2d(stack, g.view(1, 1, 1, -1).expand(n, 1, 1, window), padding=(0, pad), groups=n)
+    out = F.conv2d(out, g.view(1, 1, -1, 1).expand(n, 1, window, 1), padding=(pad, 0), groups=n)
+    mu_x, mu_y, exx, eyy, exy = out.split(c, dim=1)
+    sxx = exx - mu_x ** 2
+    syy = eyy - mu_y ** 2
+    sxy = exy - mu_x * mu_y
     c1, c2 = 0.01 ** 2, 0.03 ** 2
     num = (2 * mu_x * mu_y + c1) * (2 * sxy + c2)
     den = (mu_x ** 2 + mu_y ** 2 + c1) * (sxx + syy + c2)

