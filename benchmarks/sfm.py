@@ -115,10 +115,8 @@ def run_gopro(work: Path, preset: str) -> dict:
     s_gps = json.loads((gps / "frame.json").read_text())["scale"]
     extra = {"rotation_error_deg (fitted median per delta)":
              {k: round(v["fitted_median_deg"], 3) for k, v in rot["deltas"].items()},
-             "rotation angle gap mean deg (eval_poses, CORI)": {
-                 k: round(v["angle_gap_mean_deg"], 3) for k, v in rot["deltas"].items()},
-             "rotation angle gap median deg vs stabilised (IORI*CORI)": stabilised_rotation_gap(
-                 pdir, src / "telemetry_orientation_per_frame.csv"),
+             "rotation angle gap median deg vs stabilised image (IORI*CORI)": {
+                 k: round(v["angle_gap_median_deg"], 3) for k, v in rot["deltas"].items()},
              "scale 1.5 m height / scale GPS": round(s_h / s_gps, 3),
              "gravity vs GRAV median deg": round(gravity_error_deg(
                  pdir, src / "telemetry_orientation_per_frame.csv"), 2),
@@ -143,33 +141,6 @@ def gravity_error_deg(pdir: Path, csv_path: Path, fps: float = 29.97) -> float:
             down = fr.cam_to_world[:3, :3].T @ np.array([0.0, 0.0, -1.0])
             errs.append(np.degrees(np.arccos(np.clip(down @ g / np.linalg.norm(g), -1, 1))))
     return float(np.median(errs)) if errs else float("nan")
-
-
-def stabilised_rotation_gap(pdir: Path, csv_path: Path, fps: float = 29.97,
-                            deltas: tuple[int, ...] = (1, 5, 15)) -> dict:
-    """Median |angle(rel_est) - angle(rel_ref)| (deg) over frame pairs (i, i + k), where the
-    reference is the orientation of the STABILISED image, (IORI * CORI)^T: the GoPro MAX video is
-    HyperSmooth-stabilised, so CORI alone (the body) disagrees with the pixels by ~1 deg/frame."""
-    import csv
-
-    from scipy.spatial.transform import Rotation as Rot
-
-    from vid2sim.factory.posed import PosedClip
-
-    with open(csv_path, newline="") as f:
-        rows = list(csv.DictReader(f))
-    row = {int(r["sample"]): i for i, r in enumerate(rows)}
-    cori = Rot.from_quat([[float(r[f"cori_{a}"]) for a in "xyzw"] for r in rows])
-    iori = Rot.from_quat([[float(r[f"iori_{a}"]) for a in "xyzw"] for r in rows])
-    ref = (iori * cori).inv()
-    frames = [f for f in PosedClip.load(pdir).frames if int(round(f.timestamp * fps)) in row]
-    est = Rot.from_matrix(np.stack([f.cam_to_world[:3, :3] for f in frames]))
-    ref = ref[[row[int(round(f.timestamp * fps))] for f in frames]]
-    out = {}
-    for k in deltas:
-        gap = np.abs((est[:-k].inv() * est[k:]).magnitude() - (ref[:-k].inv() * ref[k:]).magnitude())
-        out[str(k)] = round(float(np.degrees(np.median(gap))), 3)
-    return out
 
 
 def kitti_K(calib: Path) -> list[float]:

@@ -187,10 +187,11 @@ def test_cli_eval_poses_json():
 
 @pytest.mark.shared_data
 def test_gopro_cori_convention_matches_gravity():
-    """Documented convention: R(cori) maps world -> camera, so R(cori)^T @ GRAV is ~constant."""
+    """Documented convention: R(cori) maps world -> camera body, so R(cori)^T @ GRAV (a body-frame
+    vector) is ~constant."""
     import csv as _csv
     path = shared_data_path("gopro_max_sidewalk") / "telemetry_orientation_per_frame.csv"
-    _, c2w = load_gopro_orientation(path)
+    _, c2w = load_gopro_orientation(path, stabilised=False)
     with open(path, newline="") as f:
         g = np.array([[float(r[f"grav_{a}"]) for a in "xyz"] for r in _csv.DictReader(f)])
     world_g = np.einsum("nij,nj->ni", c2w, g)  # R(q)^T g

@@ -254,23 +254,28 @@ def evaluate(est: Trajectory, gt: Trajectory, deltas: tuple[int, ...] = (1, 10),
 
 
 # ----------------------------------------------------------------------------- GoPro orientation
-def load_gopro_orientation(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def load_gopro_orientation(path: Path, stabilised: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """telemetry_orientation_per_frame.csv -> (frame indices [N], camera-to-world rotations [N, 3, 3]).
 
-    CORI (w, x, y, z) maps world -> camera (see the module docstring), so camera-to-world = R(q)^T.
+    CORI (w, x, y, z) maps world -> camera body (see the module docstring). The GoPro MAX
+    video is stabilised (HyperSmooth): the orientation of the PIXELS is IORI * CORI, and CORI
+    alone disagrees with the image by ~1 deg per frame. `stabilised=True` (default) returns
+    the image orientation, camera-to-world = (IORI * CORI)^T; False returns the body, R(CORI)^T.
     """
     path = Path(path)
     try:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
         idx = np.array([int(r["sample"]) for r in rows])
-        q = np.array([[float(r[f"cori_{a}"]) for a in "xyzw"] for r in rows])
+        rot = Rotation.from_quat([[float(r[f"cori_{a}"]) for a in "xyzw"] for r in rows])
+        if stabilised and rows:
+            rot = Rotation.from_quat([[float(r[f"iori_{a}"]) for a in "xyzw"] for r in rows]) * rot
     except (OSError, KeyError, ValueError) as e:
-        raise PoseEvalError(path, f"not a GoPro orientation CSV with sample,cori_w..cori_z columns ({e})") from e
-    if len(q) == 0:
+        raise PoseEvalError(path, "not a GoPro orientation CSV with sample, cori_w..cori_z "
+                                  f"(and iori_w..iori_z when stabilised) columns ({e})") from e
+    if len(idx) == 0:
         raise PoseEvalError(path, "no rows")
-    R = Rotation.from_quat(q).as_matrix().transpose(0, 2, 1)
-    return idx, R
+    return idx, rot.as_matrix().transpose(0, 2, 1)
 
 
 def _relative(R: np.ndarray, k: int) -> np.ndarray:
@@ -286,15 +291,17 @@ def fit_extrinsic(rel_est: np.ndarray, rel_ref: np.ndarray) -> np.ndarray:
 
 
 def gopro_rotation_errors(est: Trajectory, csv_path: Path, deltas: tuple[int, ...] = (1, 5, 15),
-                          fit: bool = True, fps: Optional[float] = None, stride: int = 1) -> dict:
-    """Relative rotation error (degrees) between estimate and CORI over frame pairs (i, i + k).
+                          fit: bool = True, fps: Optional[float] = None, stride: int = 1,
+                          stabilised: bool = True) -> dict:
+    """Relative rotation error (degrees) between estimate and the telemetry orientation of the
+    image (IORI * CORI, see `load_gopro_orientation`) over frame pairs (i, i + k).
 
     `angle_gap`: | angle(rel_est) - angle(rel_cori) |, no frame assumption at all.
     `fitted`: angle(rel_est^T X^T rel_cori X) with the camera-to-IMU rotation X fitted on delta=max.
     Estimate frame j is video frame j * stride (or round(timestamp * fps) when fps is given);
     deltas count estimate frames.
     """
-    gidx, Rg = load_gopro_orientation(csv_path)
+    gidx, Rg = load_gopro_orientation(csv_path, stabilised)
     keys = est.keys * stride  # estimate frame j is video frame j * stride (sub-sampled frames)
     if fps is not None and est.timestamps is not None:  # estimate frames sub-sampled: key by time
         keys = np.round(est.timestamps * fps).astype(int)
@@ -303,7 +310,8 @@ def gopro_rotation_errors(est: Trajectory, csv_path: Path, deltas: tuple[int, ..
         raise PoseEvalError(csv_path, f"only {len(common)} estimate frames have telemetry")
     Re, Rg = est.T[ie, :3, :3], Rg[ig]
     rep: dict = {"n_matched": int(len(common)), "deltas": {}, "convention":
-                 "camera_to_world = R(cori)^T; pairs compared as R_i^T R_{i+k}"}
+                 "camera_to_world = R(iori * cori)^T (stabilised image)" if stabilised
+                 else "camera_to_world = R(cori)^T (camera body)", "pairs": "R_i^T R_{i+k}"}
     X = np.eye(3)
     if fit:
         k = max(d for d in deltas if d < len(common))
