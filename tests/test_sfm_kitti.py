@@ -18,7 +18,6 @@ def kitti_intrinsics(calib: Path) -> list[float]:
     return [P0[0, 0], P0[1, 1], P0[0, 2], P0[1, 2]]
 
 
-@pytest.mark.slow
 @pytest.mark.shared_data
 def test_kitti_registers_with_low_ate(tmp_path):
     data = shared_data_path("kitti_rural")

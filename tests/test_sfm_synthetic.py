@@ -11,7 +11,6 @@ from vid2sim.factory.synthetic import generate_street, render_video
 from vid2sim.factory.synthetic import preset as street_preset
 
 
-@pytest.mark.slow
 def test_synthetic_street_metric_poses(tmp_path):
     conf = street_preset("demo", seed=1, duration_s=4.0, write_depth=False)
     clip = render_video(generate_street(conf), conf, tmp_path / "render")
