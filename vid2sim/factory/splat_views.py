@@ -23,9 +23,11 @@ from vid2sim.splats.types import RasterSettings
 
 @dataclass(frozen=True)
 class SplatViewConfig:
-    scale: float = 0.5  # fraction of the frame resolution to render at
+    # 0.3 x 854x480 with every 2nd frame: the 0.1 m TSDF needs no more (demo street: same
+    # accuracy as 0.5 / every frame, fusion 2 s instead of 80 s)
+    scale: float = 0.3  # fraction of the frame resolution to render at
     min_alpha: float = 0.5  # pixels with lower accumulated opacity are invalid
-    every: int = 1  # use every n-th training frame
+    every: int = 2  # use every n-th training frame
     backend: str = "auto"
 
 
