@@ -52,10 +52,13 @@ def radix_sort(keys, rows, rects):
 
 
 @njit(cache=True)
-def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles):
+def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos=False):
     """Rows r < n_rows with a non-empty pixel box, depth-sorted and binned to tiles.
 
-    Returns (tile_offsets [n_tiles+1] int64, inst [M] int32 row indices)."""
+    Returns (tile_offsets [n_tiles+1] int64, inst [M] int32 row indices, row_start
+    [n_rows+1] int64, pos [M] int64): with want_pos, row r's instances sit at
+    inst[pos[row_start[r]:row_start[r+1]]] (what the backward sums per splat); else the
+    last two are 0-size."""
     n = 0
     for r in range(n_rows):
         if box[r, 2] >= box[r, 0]:
@@ -65,16 +68,23 @@ def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles):
     rects = np.empty(n, np.uint64)
     z = np.empty(1, np.float32)
     bits = z.view(np.uint32)
+    row_start = np.zeros(n_rows + 1 if want_pos else 0, np.int64)
     j = 0
     for r in range(n_rows):
         if box[r, 2] >= box[r, 0]:
             z[0] = fo[r, F_Z]
             keys[j] = _float_key(bits[0])
             rows[j] = r
-            rects[j] = (np.uint64(box[r, 0] // tile) | (np.uint64(box[r, 1] // tile) << 16)
-                        | (np.uint64(box[r, 2] // tile) << 32)
-                        | (np.uint64(box[r, 3] // tile) << 48))
+            tx0, ty0 = box[r, 0] // tile, box[r, 1] // tile
+            tx1, ty1 = box[r, 2] // tile, box[r, 3] // tile
+            rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
+                        | (np.uint64(ty1) << 48))
+            if want_pos:
+                row_start[r + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
             j += 1
+    if want_pos:
+        for r in range(n_rows):
+            row_start[r + 1] += row_start[r]
     rows, rects = radix_sort(keys, rows, rects)
     counts = np.zeros(n_tiles + 1, np.int64)
     for k in range(n):
@@ -87,14 +97,20 @@ def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles):
     for t in range(n_tiles):
         counts[t + 1] += counts[t]
     inst = np.empty(counts[n_tiles], np.int32)
+    pos = np.empty(counts[n_tiles] if want_pos else 0, np.int64)
     fill = counts[:n_tiles].copy()
     for k in range(n):
         q = rects[k]
         tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
         tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
+        r = rows[k]
+        j = row_start[r] if want_pos else 0
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 t = ty * tiles_x + tx
-                inst[fill[t]] = rows[k]
+                inst[fill[t]] = r
+                if want_pos:
+                    pos[j] = fill[t]
+                    j += 1
                 fill[t] += 1
-    return counts, inst
+    return counts, inst, row_start, pos

@@ -43,6 +43,8 @@ class Frame:
     box: np.ndarray  # [V, 4] int32 pixel box (j0, i0, j1, i1 inclusive)
     tile_offsets: np.ndarray  # [n_tiles + 1]
     inst: np.ndarray  # [M] visible index per (tile, depth) instance
+    row_start: np.ndarray  # [V + 1] visible splat v's instances: pos[row_start[v]:...]
+    pos: np.ndarray  # [M] instance slots grouped by visible splat
     color: np.ndarray  # [H, W, 3]
     alpha: np.ndarray  # [H, W]
     depth: np.ndarray  # [H, W]
@@ -59,7 +61,8 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     """Bin the visible splats (fo [V, NF], box [V, 4]) and composite all tiles."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
-    offsets, inst = sort_and_bin(fo, box, fo.shape[0], tile, tiles_x, n_tiles)
+    offsets, inst, row_start, pos = sort_and_bin(fo, box, fo.shape[0], tile, tiles_x, n_tiles,
+                                                 True)
     color = np.empty((height, width, 3), np.float32)
     normal = np.empty((height, width, 3), np.float32)
     alpha, depth, median, T_final = (np.empty((height, width), np.float32) for _ in range(4))
@@ -67,7 +70,8 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     med_idx = np.empty((height, width), np.int32)
     raster_forward(fo, box, offsets, inst, width, height, tile, color, alpha, depth, normal,
                    median, T_final, n_contrib, med_idx, numba.get_num_threads())
-    return offsets, inst, color, alpha, depth, normal, median, T_final, n_contrib, med_idx
+    return (offsets, inst, row_start, pos, color, alpha, depth, normal, median, T_final,
+            n_contrib, med_idx)
 
 
 _SCRATCH = threading.local()
@@ -95,7 +99,7 @@ def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
     project_forward(idx, means, quats, log_scales, logits, sh, deg,
                     view, campos, cam, W, H, float(settings.near), float(settings.far),
-                    cov_alpha, fo, box, radii)
+                    cov_alpha, fo, box, radii, numba.get_num_threads())
     ids = np.flatnonzero(radii)
     fo_v, box_v = fo[ids], box[ids]
     parts = composite(fo_v, box_v, W, H, tile)
@@ -132,7 +136,8 @@ class _Rasterize(torch.autograd.Function):
         d_alpha_np, d_depth_np, d_median_np = (np.zeros((H, W), np.float32) if g is None
                                                else _np32(g)
                                                for g in (d_alpha, d_depth, d_median))
-        g2 = raster_backward(fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.ids.shape[0], W, H,
+        g2 = raster_backward(fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.row_start, fr.pos,
+                             fr.ids.shape[0], W, H,
                              kernel_tile(setup.settings.tile_size), fr.T_final, fr.n_contrib,
                              fr.med_idx,
                              d_color_np, d_alpha_np, d_depth_np, d_normal_np, d_median_np,
@@ -146,7 +151,8 @@ class _Rasterize(torch.autograd.Function):
                    else np.zeros(setup.grad2d.shape, np.float32))
         view, campos, cam = camera_arrays(setup.camera)
         project_backward(fr.ids, means, quats, log_scales, logits, sh, setup.deg, view, campos,
-                         cam, W, H, g2, *out, grad2d, absgrad, want_abs)
+                         cam, W, H, g2, *out, grad2d, absgrad, want_abs,
+                         numba.get_num_threads())
         if not direct:
             setup.grad2d.add_(torch.from_numpy(grad2d).to(setup.grad2d.dtype))
             if want_abs:

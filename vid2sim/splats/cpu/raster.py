@@ -13,6 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ._sched import CHUNK, fetch_add, n_chunks, new_counter
+
 from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X,
                          F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_C, G_MX, G_MY, G_O, G_R, G_Z, NG)
 
@@ -129,33 +131,54 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
             med_idx[py, px] = med[p]
 
 
+@njit(cache=True)
+def tile_order(tile_offsets):
+    """Tile ids [T] by instance count, largest first: drawn in this order from a shared
+    counter, the big tiles start early and the small ones fill in at the end."""
+    return np.argsort(tile_offsets[:-1] - tile_offsets[1:], kind="mergesort")
+
+
+@njit(cache=True)
+def tile_rect(t, tiles_x, tile, width, height):
+    """Pixel rectangle (x0, y0, x1, y1) of tile t (x1, y1 exclusive)."""
+    x0 = (t % tiles_x) * tile
+    y0 = (t // tiles_x) * tile
+    return x0, y0, min(x0 + tile, width), min(y0 + tile, height)
+
+
 @njit(parallel=True, cache=True)
 def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alpha, depth,
                    normal, median, T_out, n_contrib, med_idx, n_workers=1):
-    """Composite every tile; outputs are [H, W(, 3)] arrays. Tiles are dealt round-robin to
-    n_workers parallel workers (interleaved rows balance sky / ground tiles)."""
+    """Composite every tile; outputs are [H, W(, 3)] arrays. n_workers parallel workers
+    draw tiles, largest first, from a shared counter (dynamic balance: near-camera tiles
+    and a core slowed by other processes do not hold the others up)."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     if tile > MAX_TILE:
         raise ValueError("cpu raster: tile larger than MAX_TILE (use kernel_tile())")
-    for h in prange(n_workers):
-        for t in range(h, n_tiles, n_workers):
+    order = tile_order(tile_offsets)
+    cap = max(np.max(tile_offsets[1:] - tile_offsets[:-1]) if n_tiles > 0 else 0, 1)
+    nxt = new_counter()
+    for _h in prange(n_workers):
+        g = np.empty((cap, NL), np.float32)
+        gb = np.empty((cap, 4), np.int32)
+        while True:
+            k = fetch_add(nxt, 1)
+            if k >= n_tiles:
+                break
+            t = order[k]
             s = tile_offsets[t]
             n = tile_offsets[t + 1] - s
-            x0 = (t % tiles_x) * tile
-            y0 = (t // tiles_x) * tile
-            x1 = min(x0 + tile, width)
-            y1 = min(y0 + tile, height)
-            g = np.empty((max(n, 1), NL), np.float32)
-            gb = np.empty((max(n, 1), 4), np.int32)
+            x0, y0, x1, y1 = tile_rect(t, tiles_x, tile, width, height)
             gather(fo, box, inst, s, n, g, gb)
             _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
                           T_out, n_contrib, med_idx)
 
 
 @njit(cache=True)
-def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
+def _tile_backward(g, gb, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
                    d_alpha, d_depth, d_normal, d_median, acc):
+    """Back-to-front pass of one tile; adds splat k's 2D gradients into acc[k] ([n, NG])."""
     tw = x1 - x0
     npx = tw * (y1 - y0)
     T = np.empty(npx, np.float32)
@@ -169,7 +192,7 @@ def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_
             last[p] = n_contrib[py, px]
             m = med_idx[py, px]
             if m >= 0:
-                acc[vids[m], G_Z] += d_median[py, px]
+                acc[m, G_Z] += d_median[py, px]
             q = gpix[p]
             q[0] = d_color[py, px, 0]
             q[1] = d_color[py, px, 1]
@@ -188,7 +211,7 @@ def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_
         ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
         o, cut = g[k, F_O], g[k, F_CUT]
         ck = (g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z], g[k, F_NX], g[k, F_NY], g[k, F_NZ])
-        a = acc[vids[k]]
+        a = acc[k]
         for py in range(by0, by1):
             dy = (F32(py) + HALF) - my
             row = (py - y0) * tw - x0
@@ -232,36 +255,52 @@ def _tile_backward(g, gb, vids, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_
 
 
 @njit(parallel=True, cache=True)
-def raster_backward(fo, box, tile_offsets, inst, n_vis, width, height, tile, T_out, n_contrib,
-                    med_idx, d_color, d_alpha, d_depth, d_normal, d_median, n_chunks):
+def raster_backward(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, height, tile,
+                    T_out, n_contrib, med_idx, d_color, d_alpha, d_depth, d_normal, d_median,
+                    n_workers):
     """Per-visible-splat 2D gradients g2 [V, NG] float32.
 
-    Race-free: tiles are dealt round-robin to n_chunks workers (one per thread), each
-    accumulating into its own [V, NG] buffer; buffers are summed at the end.
+    Race-free and deterministic for any thread count: each (tile, splat) instance owns
+    one row of gi [M, NG] (tiles drawn dynamically, largest first); then every splat sums
+    its instance rows pos[row_start[v]:row_start[v+1]] in a fixed order.
     """
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
-    bufs = np.zeros((n_chunks, n_vis, NG), np.float32)
-    for h in prange(n_chunks):
-        for t in range(h, n_tiles, n_chunks):
+    order = tile_order(tile_offsets)
+    cap = max(np.max(tile_offsets[1:] - tile_offsets[:-1]) if n_tiles > 0 else 0, 1)
+    gi = np.empty((inst.shape[0], NG), np.float32)
+    nxt = new_counter()
+    for _h in prange(n_workers):
+        g = np.empty((cap, NL), np.float32)
+        gb = np.empty((cap, 4), np.int32)
+        while True:
+            k = fetch_add(nxt, 1)
+            if k >= n_tiles:
+                break
+            t = order[k]
             s = tile_offsets[t]
             n = tile_offsets[t + 1] - s
             if n == 0:
                 continue
-            x0 = (t % tiles_x) * tile
-            y0 = (t // tiles_x) * tile
-            x1 = min(x0 + tile, width)
-            y1 = min(y0 + tile, height)
-            g = np.empty((n, NL), np.float32)
-            gb = np.empty((n, 4), np.int32)
+            x0, y0, x1, y1 = tile_rect(t, tiles_x, tile, width, height)
             gather(fo, box, inst, s, n, g, gb)
-            _tile_backward(g, gb, inst[s:s + n], n, x0, y0, x1, y1, T_out, n_contrib,
-                           med_idx, d_color, d_alpha, d_depth, d_normal, d_median, bufs[h])
+            acc = gi[s:s + n]
+            acc[:] = 0.0
+            _tile_backward(g, gb, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
+                           d_alpha, d_depth, d_normal, d_median, acc)
     out = np.empty((n_vis, NG), np.float32)
-    for v in prange(n_vis):
-        for q in range(NG):
-            acc = F32(0.0)
-            for h in range(n_chunks):
-                acc += bufs[h, v, q]
-            out[v, q] = acc
+    nxt[0] = 0
+    n_items = n_chunks(n_vis, CHUNK)
+    for _h in prange(n_workers):
+        while True:
+            c = fetch_add(nxt, 1)
+            if c >= n_items:
+                break
+            for v in range(c * CHUNK, min(n_vis, (c + 1) * CHUNK)):
+                o = out[v]
+                o[:] = 0.0
+                for j in range(row_start[v], row_start[v + 1]):
+                    a = gi[pos[j]]
+                    for q in range(NG):
+                        o[q] += a[q]
     return out

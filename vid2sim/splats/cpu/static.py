@@ -179,9 +179,11 @@ class StaticScene:
         fo, box, radii = self._fo, self._box, self._radii
         project_static(self._sel, n, self.means, self.cov, self.opacity, self.cut, self.normal,
                        self.rgb, self.sh, deg, view, campos, cam, W, H, float(settings.near),
-                       float(settings.far), cov_alpha, fo, box, radii)
+                       float(settings.far), cov_alpha, fo, box, radii,
+                       numba.get_num_threads())
         tiles_x = (W + tile - 1) // tile
-        offsets, inst = sort_and_bin(fo, box, n, tile, tiles_x, tiles_x * ((H + tile - 1) // tile))
+        offsets, inst, _, _ = sort_and_bin(fo, box, n, tile, tiles_x,
+                                           tiles_x * ((H + tile - 1) // tile), False)
         color, normal_acc, rgb, normal = (np.empty((H, W, 3), np.float32) for _ in range(4))
         alpha, depth_acc, median, depth = (np.empty((H, W), np.float32) for _ in range(4))
         raster_forward(fo, box, offsets, inst, W, H, tile, color, alpha, depth_acc, normal_acc,

@@ -10,6 +10,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._geom import LOWPASS, jac_limits
+from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from ._sh import sh_color
 from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
                          F_Z, sigma_cut, view_parts)
@@ -71,98 +72,115 @@ def _set_empty(box, r):
     box[r, 3] = -1
 
 
+@njit(cache=True)
+def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos, cam,
+                lims, width, height, near, far, cov_alpha, fo, box, radii):
+    """project_static for row r."""
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    lxp, lxn, lyp, lyn = lims
+    i = sel[r]
+    radii[r] = 0
+    _set_empty(box, r)
+    mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
+    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+    if not (tz >= near and tz <= far):
+        return
+    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+    iz = 1.0 / tz
+    rx = min(max(tx * iz, -lxn), lxp)
+    ry = min(max(ty * iz, -lyn), lyp)
+    j00 = fx * iz
+    j11 = fy * iz
+    j02 = -fx * rx * iz
+    j12 = -fy * ry * iz
+    # rows u, v of J W (2x3)
+    u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
+    v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
+    s00, s01, s02 = cov[i, 0], cov[i, 1], cov[i, 2]
+    s11, s12, s22 = cov[i, 3], cov[i, 4], cov[i, 5]
+    su0 = s00 * u0 + s01 * u1 + s02 * u2
+    su1 = s01 * u0 + s11 * u1 + s12 * u2
+    su2 = s02 * u0 + s12 * u1 + s22 * u2
+    A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
+    B = v0 * su0 + v1 * su1 + v2 * su2
+    C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
+         + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+    det = A * C - B * B
+    if not det > 0.0:
+        return
+    if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
+        return
+    px = fx * tx * iz + cx
+    py = fy * ty * iz + cy
+    lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
+    rad = math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
+    if px + rad <= 0.0 or px - rad >= width or py + rad <= 0.0 or py - rad >= height:
+        return
+    radii[r] = max(rad, 1)
+    ct = cut[i]
+    idet = 1.0 / det
+    fo[r, F_X] = px
+    fo[r, F_Y] = py
+    fo[r, F_A] = C * idet
+    fo[r, F_B] = -B * idet
+    fo[r, F_C] = A * idet
+    fo[r, F_O] = opacity[i]
+    fo[r, F_CUT] = ct
+    fo[r, F_Z] = tz
+    if ct > 0.0:
+        ex = math.sqrt(2.0 * ct * A) * 1.001 + 1e-3
+        ey = math.sqrt(2.0 * ct * C) * 1.001 + 1e-3
+        j0 = max(math.ceil(px - ex - 0.5), 0)
+        j1 = min(math.floor(px + ex - 0.5), width - 1)
+        i0 = max(math.ceil(py - ey - 0.5), 0)
+        i1 = min(math.floor(py + ey - 0.5), height - 1)
+        if j0 <= j1 and i0 <= i1:
+            box[r, 0] = j0
+            box[r, 1] = i0
+            box[r, 2] = j1
+            box[r, 3] = i1
+    if deg == 0:
+        fo[r, F_R] = rgb[i, 0]
+        fo[r, F_G] = rgb[i, 1]
+        fo[r, F_BL] = rgb[i, 2]
+    else:
+        vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
+        vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
+        fo[r, F_R] = max(cr, 0.0)
+        fo[r, F_G] = max(cg, 0.0)
+        fo[r, F_BL] = max(cb, 0.0)
+    nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
+    cnx = W[0] * nx + W[1] * ny + W[2] * nz
+    cny = W[3] * nx + W[4] * ny + W[5] * nz
+    cnz = W[6] * nx + W[7] * ny + W[8] * nz
+    f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
+    fo[r, F_NX] = f * cnx
+    fo[r, F_NY] = f * cny
+    fo[r, F_NZ] = f * cnz
+
+
 @njit(parallel=True, cache=True)
 def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, view, campos,
-                   cam, width, height, near, far, cov_alpha, fo, box, radii):
+                   cam, width, height, near, far, cov_alpha, fo, box, radii, n_workers=1):
     """Project Gaussians sel[:n_sel]; row r holds Gaussian sel[r]: fo [R, NF] (as
     project_forward), box [R, 4] pixel box (empty, j1 < j0, when it reaches no pixel or is
     culled) and radii [R] (0 = culled). Same math as preprocess.screen_and_box, with
     Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
     W, tw = view_parts(view)
-    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
-    lxp, lxn, lyp, lyn = jac_limits(fx, fy, cx, cy, width, height)
-    for r in prange(n_sel):
-        i = sel[r]
-        radii[r] = 0
-        _set_empty(box, r)
-        mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-        if not (tz >= near and tz <= far):
-            continue
-        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-        iz = 1.0 / tz
-        rx = min(max(tx * iz, -lxn), lxp)
-        ry = min(max(ty * iz, -lyn), lyp)
-        j00 = fx * iz
-        j11 = fy * iz
-        j02 = -fx * rx * iz
-        j12 = -fy * ry * iz
-        # rows u, v of J W (2x3)
-        u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
-        v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
-        s00, s01, s02 = cov[i, 0], cov[i, 1], cov[i, 2]
-        s11, s12, s22 = cov[i, 3], cov[i, 4], cov[i, 5]
-        su0 = s00 * u0 + s01 * u1 + s02 * u2
-        su1 = s01 * u0 + s11 * u1 + s12 * u2
-        su2 = s02 * u0 + s12 * u1 + s22 * u2
-        A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
-        B = v0 * su0 + v1 * su1 + v2 * su2
-        C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
-             + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
-        det = A * C - B * B
-        if not det > 0.0:
-            continue
-        if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
-            continue
-        px = fx * tx * iz + cx
-        py = fy * ty * iz + cy
-        lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
-        rad = math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
-        if px + rad <= 0.0 or px - rad >= width or py + rad <= 0.0 or py - rad >= height:
-            continue
-        radii[r] = max(rad, 1)
-        ct = cut[i]
-        idet = 1.0 / det
-        fo[r, F_X] = px
-        fo[r, F_Y] = py
-        fo[r, F_A] = C * idet
-        fo[r, F_B] = -B * idet
-        fo[r, F_C] = A * idet
-        fo[r, F_O] = opacity[i]
-        fo[r, F_CUT] = ct
-        fo[r, F_Z] = tz
-        if ct > 0.0:
-            ex = math.sqrt(2.0 * ct * A) * 1.001 + 1e-3
-            ey = math.sqrt(2.0 * ct * C) * 1.001 + 1e-3
-            j0 = max(math.ceil(px - ex - 0.5), 0)
-            j1 = min(math.floor(px + ex - 0.5), width - 1)
-            i0 = max(math.ceil(py - ey - 0.5), 0)
-            i1 = min(math.floor(py + ey - 0.5), height - 1)
-            if j0 <= j1 and i0 <= i1:
-                box[r, 0] = j0
-                box[r, 1] = i0
-                box[r, 2] = j1
-                box[r, 3] = i1
-        if deg == 0:
-            fo[r, F_R] = rgb[i, 0]
-            fo[r, F_G] = rgb[i, 1]
-            fo[r, F_BL] = rgb[i, 2]
-        else:
-            vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
-            vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-            cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
-            fo[r, F_R] = max(cr, 0.0)
-            fo[r, F_G] = max(cg, 0.0)
-            fo[r, F_BL] = max(cb, 0.0)
-        nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
-        cnx = W[0] * nx + W[1] * ny + W[2] * nz
-        cny = W[3] * nx + W[4] * ny + W[5] * nz
-        cnz = W[6] * nx + W[7] * ny + W[8] * nz
-        f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
-        fo[r, F_NX] = f * cnx
-        fo[r, F_NY] = f * cny
-        fo[r, F_NZ] = f * cnz
+    lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
+    n_items = n_chunks(n_sel, CHUNK)
+    nxt = new_counter()
+    for _h in prange(n_workers):
+        while True:
+            ch = fetch_add(nxt, 1)
+            if ch >= n_items:
+                break
+            for r in range(ch * CHUNK, min(n_sel, (ch + 1) * CHUNK)):
+                _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
+                            campos, cam, lims, width, height, near, far, cov_alpha, fo, box,
+                            radii)
 
 
 @njit(cache=True)
