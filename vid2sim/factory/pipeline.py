@@ -73,7 +73,7 @@ def preset(name: str) -> PipelineConfig:
     """Named pipeline presets: `fast` (minutes on 2 CPU cores) and `paper` (30k iterations)."""
     if name not in ("fast", "paper"):
         raise ValueError(f"unknown preset {name!r} (fast | paper)")
-    views = SplatViewConfig(scale=0.5 if name == "fast" else 1.0)
+    views = SplatViewConfig() if name == "fast" else SplatViewConfig(scale=1.0, every=1)
     return PipelineConfig(preset=name, recon=recon_preset(name), views=views).resolved()
 
 
