@@ -9,6 +9,7 @@ cameras.parquet, preview.png, extras: visual_mesh.ply, colmap/) via `write_bundl
 from __future__ import annotations
 
 import json
+import re
 import tempfile
 from pathlib import Path
 from typing import Any
@@ -19,9 +20,15 @@ import torch
 
 from vid2sim.factory.posed import PosedClip
 from vid2sim.factory.stage import Timer, is_done, load_record, mark_done, stage_key
-from vid2sim.registry.bundle import make_scene_json, write_bundle
+from vid2sim.factory.stage import StageError
+from vid2sim.registry.bundle import BundleError, make_scene_json, write_bundle
 
 STAGE = "bundle"
+
+
+def tag(key: str, value: object) -> str:
+    """`key:value` made a valid registry tag (spaces and other characters become '-')."""
+    return re.sub(r"[^A-Za-z0-9._:=/+-]+", "-", f"{key}:{value}").strip("-")[:64]
 
 
 def _read_json(path: Path) -> dict:
@@ -68,6 +75,13 @@ def render_preview(splats_ply: Path, clip: PosedClip, walkable: np.ndarray, out_
 def assemble_bundle(ctx: dict, out_dir: Path) -> Path:
     """Stage entry (called by the pipeline with the clip's context); returns the bundle folder
     `out_dir/scene` (the stage marker sits in `out_dir`, outside the bundle)."""
+    try:
+        return _assemble(ctx, out_dir)
+    except BundleError as e:  # the clip's outputs do not make a valid bundle: a verdict, not a bug
+        raise StageError(STAGE, "invalid_bundle", str(e)) from e
+
+
+def _assemble(ctx: dict, out_dir: Path) -> Path:
     job, conf = ctx["job"], ctx["conf"]
     dirs = {k: Path(ctx[f"{k}_dir"]) for k in ("recon", "meshing", "walkable")}
     sfm_dir = Path(ctx["sfm_dir"]) if ctx.get("sfm_dir") else None  # absent for posed inputs
@@ -91,7 +105,7 @@ def assemble_bundle(ctx: dict, out_dir: Path) -> Path:
             clip_start_s=start, clip_end_s=end, group=spec.group,
             scale_source=str(clip.frame_info.get("scale_source", "capture_height")),
             metrics=_scalars(metrics), config=conf,
-            tags=sorted({f"{k}:{v}" for k, v in spec.tags.items()} | {f"licence:{job.licence}"}))
+            tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
         with tempfile.TemporaryDirectory() as tmp:
             preview = render_preview(dirs["recon"] / "splats.ply", clip, walk["grid"], Path(tmp) / "p.png")
             extras = {"visual_mesh.ply": dirs["meshing"] / "visual_mesh.ply"}
