@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import sys
 import tempfile
@@ -24,21 +23,10 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from common import hardware_line  # noqa: E402  (benchmarks/common.py)
 from vid2sim.factory.pipeline import ingest, preset  # noqa: E402
 
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
-
-
-def hardware() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return f"{cpu}, {os.cpu_count()} cores, {platform.python_version()}, load {os.getloadavg()[0]:.1f}"
 
 
 def run_ingest(inputs: list[str], work: Path, **kw) -> tuple[float, dict]:
@@ -104,7 +92,7 @@ def main() -> None:
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
     args = ap.parse_args()
-    print(f"hardware: {hardware()}")
+    print(f"hardware: {hardware_line()}")
     print(f"command: {' '.join(sys.argv)}")
     {"gopro": bench_gopro, "parallel": bench_parallel}[args.what](args)
 

@@ -19,7 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import time
 from pathlib import Path
@@ -27,22 +26,10 @@ from typing import Any, Callable
 
 import numpy as np
 
+from common import hardware_line  # benchmarks/common.py
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
-
-
-def hardware_line() -> str:
-    cpu = "unknown CPU"
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
-    return (f"{cpu}; {os.cpu_count()} cores; load avg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
-            f"{platform.python_implementation()} {platform.python_version()}")
 
 
 def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
