@@ -165,9 +165,29 @@ def test_threads_do_not_change_results():
     o2, g2 = run(cpu_rasterize, scene, camera, settings, weights)
     for k in IMAGES:
         assert torch.equal(getattr(o1, k), getattr(o2, k))
-    for k in PARAMS:
-        # only the float32 summation order across per-thread buffers differs
-        torch.testing.assert_close(g1[k], g2[k], rtol=1e-4, atol=1e-5 * float(g2[k].abs().max()))
+    for k in PARAMS:  # per-instance gradient rows summed in a fixed order: bitwise equal
+        assert torch.equal(g1[k], g2[k]), k
+
+
+def test_parallel_binning_equals_serial():
+    """Blocked parallel sort/bin (many blocks, many depth ties) == the one-thread version."""
+    from vid2sim.splats.cpu.binning import BLOCK, sort_and_bin
+    rng = np.random.default_rng(0)
+    n = 6 * BLOCK + 123
+    fo = np.zeros((n, 16), np.float32)
+    fo[:, 7] = rng.integers(0, 50, n)  # depth column F_Z, with ties
+    x0, y0 = rng.integers(0, 300, n), rng.integers(0, 170, n)
+    box = np.stack([x0, y0, np.minimum(x0 + rng.integers(-3, 40, n), 319),
+                    np.minimum(y0 + rng.integers(0, 30, n), 179)], 1).astype(np.int32)
+    serial = sort_and_bin(fo, box, n, 16, 20, 240, True, 1)
+    parallel = sort_and_bin(fo, box, n, 16, 20, 240, True, 3)
+    for a, b in zip(serial, parallel):
+        np.testing.assert_array_equal(a, b)
+    offsets, inst = serial[0], serial[1]
+    t = 37  # a tile's slice is depth-sorted, ties by row
+    sl = inst[offsets[t]:offsets[t + 1]]
+    key = fo[sl, 7].astype(np.float64) * n + sl
+    assert len(sl) > 0 and np.all(np.diff(key) > 0)
 
 
 def test_empty_and_bad_inputs():

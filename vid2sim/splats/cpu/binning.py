@@ -4,16 +4,23 @@ Reads per-row depths fo[:, F_Z] and pixel boxes box [R, 4] (j0, i0, j1, i1 inclu
 empty when j1 < j0); writes tile_offsets [T+1] and the instance list inst [M] (row index),
 each tile's slice sorted by depth, ties by row index. The radix sort carries each row's
 packed tile rectangle so binning reads sequentially (no random access into `box`).
+
+Every step runs on fixed blocks of rows (per-block counts, a serial prefix over blocks,
+then a parallel scatter), so the result is the same for any thread count; workers draw
+blocks from a shared counter.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
+from ._sched import fetch_add, new_counter
 from .preprocess import F_Z
 
 U16 = np.uint64(0xFFFF)
+BLOCK = 8192  # rows per block
+RADIX = 2048  # 11-bit digits, three passes
 
 
 @njit(cache=True)
@@ -23,9 +30,165 @@ def _float_key(b):
 
 
 @njit(cache=True)
-def radix_sort(keys, rows, rects):
+def _unpack(q):
+    """Tile rectangle (tx0, ty0, tx1, ty1) of a packed uint64."""
+    return (np.int64(q & U16), np.int64((q >> 16) & U16), np.int64((q >> 32) & U16),
+            np.int64(q >> 48))
+
+
+@njit(cache=True)
+def _n_blocks(n):
+    return max(1, (n + BLOCK - 1) // BLOCK)
+
+
+@njit(parallel=True, cache=True)
+def radix_sort(keys, rows, rects, n_workers=1):
     """Stable ascending sort of uint32 keys [n], carrying int32 rows [n] and uint64 rects [n]:
-    LSD radix, three 11-bit passes. Returns (rows, rects) sorted."""
+    LSD radix, three 11-bit passes, per-block histograms. Returns (rows, rects) sorted."""
+    n = keys.shape[0]
+    nb = _n_blocks(n)
+    k2 = np.empty(n, np.uint32)
+    r2 = np.empty(n, np.int32)
+    q2 = np.empty(n, np.uint64)
+    hist = np.empty((nb, RADIX), np.int64)
+    for shift in (0, 11, 22):
+        sh = np.uint32(shift)
+        nxt = new_counter()
+        for _h in prange(n_workers):
+            while True:
+                b = fetch_add(nxt, 1)
+                if b >= nb:
+                    break
+                hist[b, :] = 0
+                for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+                    hist[b, (keys[i] >> sh) & np.uint32(RADIX - 1)] += 1
+        s = 0
+        for d in range(RADIX):  # exclusive prefix, digit-major then block
+            for b in range(nb):
+                c = hist[b, d]
+                hist[b, d] = s
+                s += c
+        nxt[0] = 0
+        for _h in prange(n_workers):
+            while True:
+                b = fetch_add(nxt, 1)
+                if b >= nb:
+                    break
+                at = hist[b]
+                for i in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+                    d = (keys[i] >> sh) & np.uint32(RADIX - 1)
+                    j = at[d]
+                    k2[j] = keys[i]
+                    r2[j] = rows[i]
+                    q2[j] = rects[i]
+                    at[d] = j + 1
+        keys, k2 = k2, keys
+        rows, r2 = r2, rows
+        rects, q2 = q2, rects
+    return rows, rects
+
+
+@njit(parallel=True, cache=True)
+def _keys(fo, box, n_rows, tile, want_pos, n_workers):
+    """Compact the rows with a non-empty box into (keys, rows, rects) in row order; with
+    want_pos also row_start [n_rows+1] (exclusive prefix of each row's tile count)."""
+    nb = _n_blocks(n_rows)
+    cnt = np.zeros(nb + 1, np.int64)
+    for b in prange(nb):
+        c = 0
+        for r in range(b * BLOCK, min(n_rows, (b + 1) * BLOCK)):
+            if box[r, 2] >= box[r, 0]:
+                c += 1
+        cnt[b + 1] = c
+    for b in range(nb):
+        cnt[b + 1] += cnt[b]
+    n = cnt[nb]
+    keys = np.empty(n, np.uint32)
+    rows = np.empty(n, np.int32)
+    rects = np.empty(n, np.uint64)
+    row_start = np.zeros(n_rows + 1 if want_pos else 0, np.int64)
+    nxt = new_counter()
+    for _h in prange(n_workers):
+        z = np.empty(1, np.float32)
+        bits = z.view(np.uint32)
+        while True:
+            b = fetch_add(nxt, 1)
+            if b >= nb:
+                break
+            j = cnt[b]
+            for r in range(b * BLOCK, min(n_rows, (b + 1) * BLOCK)):
+                if box[r, 2] < box[r, 0]:
+                    continue
+                z[0] = fo[r, F_Z]
+                keys[j] = _float_key(bits[0])
+                rows[j] = r
+                tx0, ty0 = box[r, 0] // tile, box[r, 1] // tile
+                tx1, ty1 = box[r, 2] // tile, box[r, 3] // tile
+                rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
+                            | (np.uint64(ty1) << 48))
+                if want_pos:
+                    row_start[r + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+                j += 1
+    if want_pos:
+        for r in range(n_rows):
+            row_start[r + 1] += row_start[r]
+    return keys, rows, rects, row_start
+
+
+@njit(parallel=True, cache=True)
+def _bin(rows, rects, row_start, tiles_x, n_tiles, want_pos, n_workers):
+    """Depth-sorted (rows, rects) -> tile_offsets [T+1], inst [M], pos [M] (see sort_and_bin)."""
+    n = rows.shape[0]
+    nb = _n_blocks(n)
+    start = np.zeros((nb, n_tiles), np.int64)  # per-block counts, then write positions
+    nxt = new_counter()
+    for _h in prange(n_workers):
+        while True:
+            b = fetch_add(nxt, 1)
+            if b >= nb:
+                break
+            cb = start[b]
+            for k in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+                tx0, ty0, tx1, ty1 = _unpack(rects[k])
+                for ty in range(ty0, ty1 + 1):
+                    for tx in range(tx0, tx1 + 1):
+                        cb[ty * tiles_x + tx] += 1
+    offsets = np.zeros(n_tiles + 1, np.int64)
+    s = 0
+    for t in range(n_tiles):  # tile-major, then block: each tile's slice stays depth-sorted
+        offsets[t] = s
+        for b in range(nb):
+            c = start[b, t]
+            start[b, t] = s
+            s += c
+    offsets[n_tiles] = s
+    inst = np.empty(s, np.int32)
+    pos = np.empty(s if want_pos else 0, np.int64)
+    nxt[0] = 0
+    for _h in prange(n_workers):
+        while True:
+            b = fetch_add(nxt, 1)
+            if b >= nb:
+                break
+            fill = start[b]
+            for k in range(b * BLOCK, min(n, (b + 1) * BLOCK)):
+                tx0, ty0, tx1, ty1 = _unpack(rects[k])
+                r = rows[k]
+                j = row_start[r] if want_pos else 0
+                for ty in range(ty0, ty1 + 1):
+                    for tx in range(tx0, tx1 + 1):
+                        t = ty * tiles_x + tx
+                        inst[fill[t]] = r
+                        if want_pos:
+                            pos[j] = fill[t]
+                            j += 1
+                        fill[t] += 1
+    return offsets, inst, pos
+
+
+@njit(cache=True)
+def _radix_sort_serial(keys, rows, rects):
+    """radix_sort in one thread."""
     n = keys.shape[0]
     k2 = np.empty(n, np.uint32)
     r2 = np.empty(n, np.int32)
@@ -52,13 +215,8 @@ def radix_sort(keys, rows, rects):
 
 
 @njit(cache=True)
-def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos=False):
-    """Rows r < n_rows with a non-empty pixel box, depth-sorted and binned to tiles.
-
-    Returns (tile_offsets [n_tiles+1] int64, inst [M] int32 row indices, row_start
-    [n_rows+1] int64, pos [M] int64): with want_pos, row r's instances sit at
-    inst[pos[row_start[r]:row_start[r+1]]] (what the backward sums per splat); else the
-    last two are 0-size."""
+def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
+    """sort_and_bin in one thread (no parallel-region overhead)."""
     n = 0
     for r in range(n_rows):
         if box[r, 2] >= box[r, 0]:
@@ -85,7 +243,7 @@ def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos=False):
     if want_pos:
         for r in range(n_rows):
             row_start[r + 1] += row_start[r]
-    rows, rects = radix_sort(keys, rows, rects)
+    rows, rects = _radix_sort_serial(keys, rows, rects)
     counts = np.zeros(n_tiles + 1, np.int64)
     for k in range(n):
         q = rects[k]
@@ -114,3 +272,19 @@ def sort_and_bin(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos=False):
                     j += 1
                 fill[t] += 1
     return counts, inst, row_start, pos
+
+
+def sort_and_bin(fo: np.ndarray, box: np.ndarray, n_rows: int, tile: int, tiles_x: int,
+                 n_tiles: int, want_pos: bool = False, n_workers: int = 1) -> tuple:
+    """Rows r < n_rows with a non-empty pixel box, depth-sorted and binned to tiles.
+
+    Returns (tile_offsets [n_tiles+1] int64, inst [M] int32 row indices, row_start
+    [n_rows+1] int64, pos [M] int64): with want_pos, row r's instances sit at
+    inst[pos[row_start[r]:row_start[r+1]]] (what the backward sums per splat); else the
+    last two are 0-size. One worker runs the serial version."""
+    if n_workers <= 1:
+        return _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos)
+    keys, rows, rects, row_start = _keys(fo, box, n_rows, tile, want_pos, n_workers)
+    rows, rects = radix_sort(keys, rows, rects, n_workers)
+    offsets, inst, pos = _bin(rows, rects, row_start, tiles_x, n_tiles, want_pos, n_workers)
+    return offsets, inst, row_start, pos

@@ -62,7 +62,7 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     offsets, inst, row_start, pos = sort_and_bin(fo, box, fo.shape[0], tile, tiles_x, n_tiles,
-                                                 True)
+                                                 True, numba.get_num_threads())
     color = np.empty((height, width, 3), np.float32)
     normal = np.empty((height, width, 3), np.float32)
     alpha, depth, median, T_final = (np.empty((height, width), np.float32) for _ in range(4))

@@ -109,7 +109,7 @@ def view_parts(view):
     return W, (view[0, 3], view[1, 3], view[2, 3])
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _project_one(c, idx, means, quats, log_scales, logits, sh, deg, W, tw, campos, cam, lims,
                  width, height, near, far, cov_alpha, fo, box, radii):
     """project_forward for candidate c."""
@@ -170,7 +170,7 @@ G_MX, G_MY, G_A, G_B, G_C, G_O, G_R, G_G, G_BL, G_Z, G_NX, G_NY, G_NZ, G_AX, G_A
 NG = 16
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _backward_one(v, ids, means, quats, log_scales, logits, sh, deg, W, tw, campos, cam, lims,
                   g2, d_means, d_quats, d_logs, d_logits, d_sh, grad2d, absgrad, want_abs):
     """project_backward for visible splat v."""

@@ -183,7 +183,8 @@ class StaticScene:
                        numba.get_num_threads())
         tiles_x = (W + tile - 1) // tile
         offsets, inst, _, _ = sort_and_bin(fo, box, n, tile, tiles_x,
-                                           tiles_x * ((H + tile - 1) // tile), False)
+                                           tiles_x * ((H + tile - 1) // tile), False,
+                                           numba.get_num_threads())
         color, normal_acc, rgb, normal = (np.empty((H, W, 3), np.float32) for _ in range(4))
         alpha, depth_acc, median, depth = (np.empty((H, W), np.float32) for _ in range(4))
         raster_forward(fo, box, offsets, inst, W, H, tile, color, alpha, depth_acc, normal_acc,

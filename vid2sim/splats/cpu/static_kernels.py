@@ -72,7 +72,7 @@ def _set_empty(box, r):
     box[r, 3] = -1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos, cam,
                 lims, width, height, near, far, cov_alpha, fo, box, radii):
     """project_static for row r."""
