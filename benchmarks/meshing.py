@@ -101,74 +101,28 @@ def run(args) -> dict:
                 walkable_area_m2=round(wm.area_m2(), 2))
 
 
-def umeyama(src: np.ndarray, dst: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
-    """Similarity (s, R, t) with dst ~ s R src + t for point sets [N, 3]."""
-    mu_s, mu_d = src.mean(0), dst.mean(0)
-    S, D = src - mu_s, dst - mu_d
-    U, sig, Vt = np.linalg.svd(D.T @ S / len(src))
-    E = np.eye(3)
-    E[2, 2] = np.sign(np.linalg.det(U @ Vt))
-    R = U @ E @ Vt
-    s = float((sig * np.diag(E)).sum() / (S ** 2).sum() * len(src))
-    return s, R, mu_d - s * R @ mu_s
-
-
 def run_from_splats(args) -> dict:
     from pathlib import Path
 
     from vid2sim.factory.posed import PosedClip
     from vid2sim.factory.splat_views import SplatViewConfig, render_views
-    from vid2sim.factory.synthetic.config import StreetConfig
+    from vid2sim.factory.synthetic.evaluate import scene_errors
     from vid2sim.splats.ply import read_ply
 
     work = Path(args.from_splats)
     clip_dir = sorted(p for p in (work / "clips").iterdir() if (p / "recon/splats.ply").exists())[0]
     clip = PosedClip.load(clip_dir / "metric")
-    gt_clip = PosedClip.load(work / "synthetic")
-    gt_info = json.loads((work / "synthetic/ground_truth.json").read_text())
-    cfg = {k: tuple(v) if isinstance(v, list) else v for k, v in gt_info["config"].items()}
-    scene = generate_street(StreetConfig(**cfg))
-    by_t = {round(f.timestamp, 3): f.cam_to_world[:3, 3] for f in gt_clip.frames}
     src = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3] metric
-    s, R, t = umeyama(src, np.array([by_t[round(f.timestamp, 3)] for f in clip.frames]))
     vconf, mconf, wconf = SplatViewConfig(scale=args.scale, every=args.every), MeshingConfig(), WalkableConfig()
     model = read_ply(clip_dir / "recon/splats.ply")
     t0 = time.perf_counter()
     res = build_meshes(render_views(model, clip, vconf), mconf)
     t_mesh = time.perf_counter() - t0
     wm = walkable_map(res.ground_points, res.collision, src, wconf)
-    wm = WalkableMap(wm.grid, wm.origin + t[:2], wm.resolution)  # metric -> GT (R ~ I, s ~ 1)
-    rec = s * sample_surface(*mesh_arrays(res.collision), 200_000) @ R.T + t
-    gt_ng = sample_surface(*scene.without_ground(), 400_000, seed=1)
-    acc = chamfer_points(rec, gt_ng).a_to_b
-    path = s * src @ R.T + t
-    near = (np.linalg.norm(gt_ng[:, None, :2] - path[None, ::5, :2], axis=-1).min(1) < 6.0) & \
-        (gt_ng[:, 2] < 2.0)
-    comp = chamfer_points(rec, gt_ng[near]).b_to_a  # GT non-ground within 6 m of the walk, below 2 m
-    g, o, r = scene.walkable_grid(pad=wconf.robot_radius_m)
-    gt = erode_walkable(WalkableMap(g, o, r), wconf.robot_radius_m)
-    x0, x1 = path[:, 0].min() + args.unseen_m, path[:, 0].max()
-    return dict(source=str(clip_dir), views=res.summary["n_views"], scale=vconf.scale,
-                every=vconf.every, sim3_scale=round(s, 4), mesh_s=round(t_mesh, 2),
-                collision_faces=res.summary["collision_faces"],
-                accuracy_m=round(acc, 4), completeness_near_walk_m=round(comp, 4),
-                # collision surface near z = 0 and > 0.2 m from any GT obstacle: ground left in
-                ground_left_frac=round(float(np.mean((rec[:, 2] < 0.15) & (_dist(rec, gt_ng) > 0.2))), 4),
-                walkable_iou=round(grid_iou(_crop(wm, x0, x1), _crop(gt, x0, x1)), 4),
-                iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
-                walkable_area_m2=round(wm.area_m2(), 2))
-
-
-def _dist(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    from scipy.spatial import cKDTree
-
-    return cKDTree(b).query(a, workers=-1)[0]
-
-
-def _crop(wm: WalkableMap, x0: float, x1: float) -> WalkableMap:
-    c = wm.world_to_cell(np.array([x0, x1]), np.zeros(2))[1]
-    c0 = max(int(c[0]), 0)
-    return WalkableMap(wm.grid[:, c0:int(c[1])], wm.origin + [c0 * wm.resolution, 0], wm.resolution)
+    err = scene_errors(clip, work / "synthetic", res.collision, wm, wconf.robot_radius_m, args.unseen_m)
+    return dict(source=str(clip_dir), views=res.summary["n_views"], scale=vconf.scale, every=vconf.every,
+                mesh_s=round(t_mesh, 2), collision_faces=res.summary["collision_faces"],
+                **{k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
 
 
 def main() -> None:

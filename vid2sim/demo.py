@@ -15,39 +15,8 @@ import time
 from pathlib import Path
 from typing import Optional
 
-import numpy as np
 from rich.console import Console
 from rich.table import Table
-
-
-def _ground_truth_errors(scene_dir: Path, synthetic_dir: Path, posed_dir: Path, street) -> dict:
-    """Pose ATE vs GT, collision-mesh accuracy vs the GT mesh (no ground), walkable IoU."""
-    import trimesh
-
-    from vid2sim.factory.eval_poses import ate
-    from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
-    from vid2sim.factory.posed import PosedClip
-    from vid2sim.factory.synthetic.street import generate_street
-    from vid2sim.factory.walkable import WalkableMap
-
-    est, gt = PosedClip.load(posed_dir), PosedClip.load(synthetic_dir)
-    gt_by_t = {round(f.timestamp, 2): f for f in gt.frames}
-    pairs = [(e, gt_by_t[round(e.timestamp, 2)]) for e in est.frames if round(e.timestamp, 2) in gt_by_t]
-    out: dict = {"matched_frames": len(pairs)}
-    if len(pairs) >= 3:
-        p_est = np.array([e.cam_to_world[:3, 3] for e, _ in pairs])  # [T, 3]
-        p_gt = np.array([g.cam_to_world[:3, 3] for _, g in pairs])
-        sim3 = ate(p_est, p_gt, with_scale=True)
-        out.update(ate_m=sim3["rmse"], ate_pct_of_path=sim3["rmse_pct_of_path"],
-                   metric_scale_error_pct=100 * abs(sim3["scale"] - 1.0))
-    verts, tris = generate_street(street).without_ground()
-    ch = chamfer_distance(trimesh.load(scene_dir / "collision.ply", force="mesh"),
-                          trimesh.Trimesh(verts, tris, process=False), 20000)
-    out["collision_accuracy_m"] = ch.a_to_b  # reconstruction -> GT (GT extends beyond the view)
-    gt_walk = synthetic_dir / "walkable_gt.npz"
-    if gt_walk.is_file():
-        out["walkable_iou"] = grid_iou(WalkableMap.load(scene_dir / "walkable.npz"), WalkableMap.load(gt_walk))
-    return out
 
 
 def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed: int = 0) -> dict:
@@ -93,7 +62,15 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     console.print(table)
     scene_dir = Path(result.context["bundle_dir"])
     metrics = json.loads((scene_dir / "scene.json").read_text())["metrics"]
-    gt = _ground_truth_errors(scene_dir, synth_dir, Path(result.context["posed_dir"]), street)
+    import trimesh
+
+    from vid2sim.factory.posed import PosedClip
+    from vid2sim.factory.synthetic.evaluate import scene_errors
+    from vid2sim.factory.walkable import WalkableMap
+
+    gt = scene_errors(PosedClip.load(Path(result.context["posed_dir"])), synth_dir,
+                      trimesh.load(scene_dir / "collision.ply", force="mesh"),
+                      WalkableMap.load(scene_dir / "walkable.npz"))
     preview = work / "preview.png"
     shutil.copyfile(scene_dir / "preview.png", preview)
     summary = {"scene_id": result.context["scene_id"], "seconds": round(time.perf_counter() - t0, 1),
