@@ -46,6 +46,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
                     on_update=lambda s: holder["p"].update(s) if "p" in holder else None)
     if "p" in holder:
         holder["p"].__exit__(None, None, None)
+        console.print()
     result = report.results[0]
     if not result.ok:
         console.print(f"[red]clip failed at {result.failed_stage}: {result.reason}[/red]\n{result.detail}")
