@@ -7,7 +7,6 @@ import time
 from datetime import datetime, timezone
 
 import numpy as np
-import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 from registry_fixtures import make_bundle, write_box_ply

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from vid2sim.factory import decode, metric, sfm
 from vid2sim.factory.eval_poses import evaluate, load_posed_clip

@@ -10,7 +10,6 @@ and reason; the others go on.
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from dataclasses import dataclass, field, replace
@@ -31,7 +30,7 @@ from vid2sim.factory.sources import resolve_source
 from vid2sim.factory.splat_views import SplatViewConfig
 from vid2sim.factory.stage import StageError, load_record
 from vid2sim.factory.walkable import WalkableConfig
-from vid2sim.versioning import config_hash, to_jsonable
+from vid2sim.versioning import config_hash
 
 MANIFEST_SUFFIXES = {".yaml", ".yml", ".csv", ".parquet"}
 
@@ -301,11 +300,3 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *, workdir: Pa
     results = run_clips(clips, stage_specs(cpus, gpus), max_retries=max_retries, on_update=on_update,
                         on_clip_done=commit) if clips else []
     return IngestReport(failed + results, committed, time.perf_counter() - t0)
-
-
-def config_json(conf: PipelineConfig) -> dict:
-    return to_jsonable(conf)
-
-
-def write_report(report: IngestReport, path: Path) -> None:
-    Path(path).write_text(json.dumps(report.to_json(), indent=2))

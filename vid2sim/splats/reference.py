@@ -8,7 +8,6 @@ and it runs in float32 or float64 (for gradcheck).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import torch
@@ -202,7 +201,6 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     dtype, N = means.dtype, means.shape[0]
     W, H = settings.width, settings.height
     proj = project(means, quats, log_scales, opacity_logits, sh, camera, settings)
-    V = proj.ids.numel()
 
     grad2d = means.new_zeros(N, 2)
     absgrad_buf = means.new_zeros(N, 2) if absgrad else None

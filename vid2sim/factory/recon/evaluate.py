@@ -48,13 +48,12 @@ def load_gt_depths(folder: Path, views: list[View]) -> dict[int, np.ndarray]:
 def _lpips_fn():
     """(fn, None) when LPIPS can run offline, else (None, reason)."""
     try:
-        import lpips  # noqa: F401
+        import lpips
     except ImportError:
         return None, "lpips package not installed"
     hub = Path(torch.hub.get_dir()) / "checkpoints"
     if not any(hub.glob("alexnet-*.pth")):
         return None, f"AlexNet weights absent from {hub} (never downloaded at run time)"
-    import lpips
 
     net = lpips.LPIPS(net="alex", verbose=False).eval()
     return (lambda a, b: float(net(a.permute(2, 0, 1)[None] * 2 - 1, b.permute(2, 0, 1)[None] * 2 - 1))), None

@@ -79,7 +79,7 @@ def build_lod(codes: np.ndarray, means: np.ndarray, cov6: np.ndarray, opacity: n
              lo=means.copy(), hi=means.copy(), rho=rho.copy())
     starts_prev = np.arange(K)  # element starts (in splat order) of the previous level
     base_prev = 0  # Gaussian index of the previous level's first element (splats: 0)
-    parts, child0, nchild, levels_base = [], [], [], []
+    parts = []
     base = K
     for L in range(1, MAX_LEVEL + 1):
         keys = codes >> np.uint64(3 * L)
