@@ -123,3 +123,23 @@ def conic_vjp(A, B, C, ga, gb, gc):
     g01 = -(k00 * t01 + k01 * t11)
     g11 = -(k01 * t01 + k11 * t11)
     return g00, g01, g11
+
+
+@njit(cache=True)
+def pixel_box(mx, my, cut, A, C, width, height, box, row):
+    """Write into box[row] the inclusive pixel box (j0, i0, j1, i1) of centres inside the
+    cut-off ellipse of a splat at (mx, my) with covariance diagonal (A, C); box is left
+    untouched when cut <= 0 or the box misses the image (callers pre-fill it empty)."""
+    if cut <= 0.0:
+        return
+    ex = math.sqrt(2.0 * cut * A) * 1.001 + 1e-3
+    ey = math.sqrt(2.0 * cut * C) * 1.001 + 1e-3
+    j0 = max(math.ceil(mx - ex - 0.5), 0)
+    j1 = min(math.floor(mx + ex - 0.5), width - 1)
+    i0 = max(math.ceil(my - ey - 0.5), 0)
+    i1 = min(math.floor(my + ey - 0.5), height - 1)
+    if j0 <= j1 and i0 <= i1:
+        box[row, 0] = j0
+        box[row, 1] = i0
+        box[row, 2] = j1
+        box[row, 3] = i1

@@ -10,8 +10,8 @@ import math
 
 from numba import njit, prange
 
-from ._geom import (conic_vjp, cov3d, jac_limits, mm3, project_cov, quat_rot, quat_rot_vjp,
-                    radius_of, tr3)
+from ._geom import (conic_vjp, cov3d, jac_limits, mm3, pixel_box, project_cov, quat_rot,
+                    quat_rot_vjp, radius_of, tr3)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from ._sh import sh_basis, sh_color, sh_dir_vjp
 
@@ -62,18 +62,7 @@ def screen_and_box(t, Sc, opacity, cut, cam, lims, cov_alpha, width, height, fo,
     box[c, 1] = 0
     box[c, 2] = -1
     box[c, 3] = -1
-    if cut > 0.0:
-        ex = math.sqrt(2.0 * cut * A) * 1.001 + 1e-3
-        ey = math.sqrt(2.0 * cut * C) * 1.001 + 1e-3
-        j0 = max(math.ceil(mx - ex - 0.5), 0)
-        j1 = min(math.floor(mx + ex - 0.5), width - 1)
-        i0 = max(math.ceil(my - ey - 0.5), 0)
-        i1 = min(math.floor(my + ey - 0.5), height - 1)
-        if j0 <= j1 and i0 <= i1:
-            box[c, 0] = j0
-            box[c, 1] = i0
-            box[c, 2] = j1
-            box[c, 3] = i1
+    pixel_box(mx, my, cut, A, C, width, height, box, c)
     return max(r, 1)
 
 

@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._geom import LOWPASS, jac_limits
+from ._geom import LOWPASS, jac_limits, pixel_box
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from ._sh import sh_color
 from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
@@ -128,18 +128,7 @@ def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
     fo[r, F_O] = opacity[i]
     fo[r, F_CUT] = ct
     fo[r, F_Z] = tz
-    if ct > 0.0:
-        ex = math.sqrt(2.0 * ct * A) * 1.001 + 1e-3
-        ey = math.sqrt(2.0 * ct * C) * 1.001 + 1e-3
-        j0 = max(math.ceil(px - ex - 0.5), 0)
-        j1 = min(math.floor(px + ex - 0.5), width - 1)
-        i0 = max(math.ceil(py - ey - 0.5), 0)
-        i1 = min(math.floor(py + ey - 0.5), height - 1)
-        if j0 <= j1 and i0 <= i1:
-            box[r, 0] = j0
-            box[r, 1] = i0
-            box[r, 2] = j1
-            box[r, 3] = i1
+    pixel_box(px, py, ct, A, C, width, height, box, r)
     if deg == 0:
         fo[r, F_R] = rgb[i, 0]
         fo[r, F_G] = rgb[i, 1]
