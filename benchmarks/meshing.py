@@ -25,15 +25,15 @@ import time
 import numpy as np
 import trimesh
 
-from vid2sim.factory.geometry_metrics import (
+from vid2sim.factory.evaluation.geometry_metrics import (
     chamfer_points, erode_walkable, grid_iou, sample_surface)
-from vid2sim.factory.meshing import DepthView, MeshingConfig, backproject, build_meshes
-from vid2sim.factory.raycast import RaycastRenderer, mesh_arrays
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
+from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street
 from vid2sim.factory.synthetic.trajectory import walking_poses
-from vid2sim.factory.walkable import WalkableConfig, WalkableMap, walkable_map
+from vid2sim.factory.geometry.walkable import WalkableConfig, WalkableMap, walkable_map
 
 
 def noisy(depth, normal, rel, deg, rng):
@@ -104,9 +104,9 @@ def run(args) -> dict:
 def run_from_splats(args) -> dict:
     from pathlib import Path
 
-    from vid2sim.factory.posed import PosedClip
-    from vid2sim.factory.splat_views import SplatViewConfig, render_views
-    from vid2sim.factory.synthetic.evaluate import scene_errors
+    from vid2sim.factory.sfm.posed import PosedClip
+    from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
+    from vid2sim.factory.evaluation.synthetic_gt import scene_errors
     from vid2sim.splats.ply import read_ply
 
     work = Path(args.from_splats)

@@ -13,7 +13,7 @@ from typing import Optional
 
 import numpy as np
 
-from vid2sim.factory.posed import PosedClip, PosedFrame
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
 from vid2sim.registry.bundle import make_scene_json, write_bundle
 
 

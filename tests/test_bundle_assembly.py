@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from vid2sim.factory.bundle_assembly import tag
+from vid2sim.factory.runtime.bundle_assembly import tag
 from vid2sim.registry.bundle import make_scene_json
 
 

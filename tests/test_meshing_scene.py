@@ -8,12 +8,12 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from vid2sim.factory import meshing, walkable
-from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
-from vid2sim.factory.meshing import DepthView, MeshingConfig, MeshingError, build_meshes
-from vid2sim.factory.raycast import RaycastRenderer, look_at
-from vid2sim.factory.visual_mesh import load_visual_mesh, render_rgb
-from vid2sim.factory.walkable import WalkableConfig, WalkableMap, walkable_map
+from vid2sim.factory.geometry import meshing, walkable
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance, grid_iou
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, MeshingError, build_meshes
+from vid2sim.factory.geometry.raycast import RaycastRenderer, look_at
+from vid2sim.factory.geometry.visual_mesh import load_visual_mesh, render_rgb
+from vid2sim.factory.geometry.walkable import WalkableConfig, WalkableMap, walkable_map
 
 GROUND_RGB, OBST_RGB = (90, 90, 90), (200, 60, 40)
 # obstacles: (centre x, y), (size x, y), height

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from vid2sim.factory.geometry_metrics import erode_walkable
-from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.evaluation.geometry_metrics import erode_walkable
+from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import preset
-from vid2sim.factory.synthetic.evaluate import scene_errors, street_config
+from vid2sim.factory.evaluation.synthetic_gt import scene_errors, street_config
 from vid2sim.factory.synthetic.stage import main as make_street
 from vid2sim.factory.synthetic.street import generate_street
-from vid2sim.factory.walkable import WalkableMap
+from vid2sim.factory.geometry.walkable import WalkableMap
 
 
 def test_ground_truth_scores_perfectly_even_when_shifted(tmp_path):

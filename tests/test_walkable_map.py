@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from vid2sim.factory import walkable
-from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
-from vid2sim.factory.walkable import WalkableConfig, WalkableError, WalkableMap, walkable_map
+from vid2sim.factory.geometry import walkable
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance, grid_iou
+from vid2sim.factory.geometry.walkable import WalkableConfig, WalkableError, WalkableMap, walkable_map
 
 
 def plane_points(x0, x1, y0, y1, step=0.05) -> np.ndarray:

@@ -5,7 +5,8 @@ Subpackages (one responsibility each):
   splats/    Gaussian-splat model, PLY I/O and the renderer (torch reference, numba CPU, gsplat CUDA)
   factory/   pipeline stages: decode -> privacy/masks -> SfM -> metric frame -> splats -> mesh -> commit
   envs/      Gymnasium hybrid environments (splat rendering + pybullet physics)
-  cluster/   Ray actors for parallel rollouts, training and evaluation
+  training/  rollouts, training and evaluation of navigation policies
+  cli/       the `vid2sim` command line (one module per sub-app)
 """
 
 import os as _os

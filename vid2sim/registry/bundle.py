@@ -9,7 +9,7 @@ A bundle folder holds:
   collision.ply    triangle mesh for physics (ground removed), same world frame
   walkable.npz     grid uint8 [H, W] (1 = walkable), origin float64 [2] (world x, y of
                    cell [0, 0]), resolution float64 (metres per cell)
-  cameras.parquet  one row per frame, schema `vid2sim.factory.posed.cameras_schema()`
+  cameras.parquet  one row per frame, schema `vid2sim.factory.sfm.posed.cameras_schema()`
   preview.png      a picture of the scene
   <extras>         optional further files or folders (visual mesh, COLMAP model, ...)
 
@@ -287,7 +287,7 @@ def load_cameras(path: Path):
     """cameras.parquet -> pyarrow.Table with exactly `cameras_schema()` columns and types."""
     import pyarrow.parquet as pq
 
-    from vid2sim.factory.posed import cameras_schema
+    from vid2sim.factory.sfm.posed import cameras_schema
 
     if not Path(path).is_file():
         raise BundleError(path, "missing cameras table")
