@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 from registry_fixtures import make_bundle, write_box_ply
 
-from vid2sim.registry.bundle import (
+from vid2sim.formats.bundle import (
     CAMERAS_PARQUET, COLLISION_PLY, SCENE_JSON, SPLATS_PLY, WALKABLE_NPZ, BundleError,
     check_scene_id, load_cameras, load_walkable, validate_bundle)
 
@@ -108,7 +108,7 @@ def test_cameras_wrong_schema(bundle):
 
 
 def test_write_bundle_failure_leaves_nothing(tmp_path, bundle):
-    from vid2sim.registry.bundle import write_bundle
+    from vid2sim.formats.bundle import write_bundle
 
     scene = json.loads((bundle / SCENE_JSON).read_text())
     out = tmp_path / "out"

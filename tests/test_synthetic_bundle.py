@@ -7,7 +7,7 @@ import open3d as o3d
 import pytest
 
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
-from vid2sim.registry.bundle import load_walkable, validate_bundle
+from vid2sim.formats.bundle import load_walkable, validate_bundle
 from vid2sim.splats.ply import read_ply
 
 

@@ -21,7 +21,7 @@ import torch
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.runtime.stage_cache import Timer, is_done, load_record, mark_done, stage_key
 from vid2sim.factory.runtime.stage_cache import StageError
-from vid2sim.registry.bundle import BundleError, make_scene_json, write_bundle
+from vid2sim.formats.bundle import BundleError, make_scene_json, write_bundle
 
 STAGE = "bundle"
 

@@ -1,7 +1,7 @@
 """Ground-truth scene bundle from a synthetic street: flat splats sampled on the GT mesh.
 
 Reads a StreetScene and its rendered SyntheticClip; writes a registry scene bundle
-(vid2sim.registry.bundle format): splats.ply (3DGS, flat Gaussians oriented with the surface,
+(vid2sim.formats.bundle format): splats.ply (3DGS, flat Gaussians oriented with the surface,
 DC colour from the procedural texture), collision.ply (GT mesh without ground), walkable.npz
 (GT sidewalk minus obstacle footprints), cameras.parquet (GT poses), preview.png, plus extras
 visual_mesh.ply (the GT mesh with per-face material/colour) and ground_truth.json.
@@ -131,7 +131,7 @@ def _sha256(path: Path) -> str:
 def write_ground_truth_bundle(scene: StreetScene, clip: SyntheticClip, out_dir: Path,
                               conf: GTBundleConfig = GTBundleConfig(), overwrite: bool = True) -> Path:
     """Write the GT scene bundle to out_dir (validated by the registry's validate_bundle)."""
-    from vid2sim.registry.bundle import make_scene_json, write_bundle
+    from vid2sim.formats.bundle import make_scene_json, write_bundle
     from vid2sim.splats.ply import write_ply
 
     c = scene.config
