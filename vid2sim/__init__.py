@@ -1,6 +1,7 @@
 """Vid2Sim factory: monocular walking videos -> simulation-ready navigation scenes.
 
 Subpackages (one responsibility each):
+  formats/   bundle contract shared by all layers (scene.json, cameras, walkable grid, PLY)
   registry/  versioned scene registry (content-addressed blobs + Delta Lake manifests)
   splats/    Gaussian-splat model, PLY I/O and the renderer (torch reference, numba CPU, gsplat CUDA)
   factory/   pipeline stages: decode -> privacy/masks -> SfM -> metric frame -> splats -> mesh -> commit

@@ -37,7 +37,7 @@ def handles_errors(fn: Callable) -> Callable:
 
     @wraps(fn)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from vid2sim.formats.bundle import BundleError
+        from vid2sim.formats.errors import BundleError
         from vid2sim.registry.split import SplitError
         from vid2sim.registry.store import RegistryError
 

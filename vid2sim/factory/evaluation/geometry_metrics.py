@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
-
-if TYPE_CHECKING:
-    from vid2sim.factory.geometry.walkable import WalkableMap
+from vid2sim.formats.walkable import WalkableGrid
 
 
 class Chamfer(NamedTuple):
@@ -66,7 +65,7 @@ def chamfer_points(pa: np.ndarray, pb: np.ndarray) -> Chamfer:
     return Chamfer(a, b, 0.5 * (a + b))
 
 
-def grid_iou(a: "WalkableMap", b: "WalkableMap") -> float:
+def grid_iou(a: WalkableGrid, b: WalkableGrid) -> float:
     """IoU of two walkable maps, resampled (nearest cell) onto a common grid at the finer
     resolution covering both. Both empty -> 1.0."""
     res = min(a.resolution, b.resolution)
@@ -83,13 +82,9 @@ def grid_iou(a: "WalkableMap", b: "WalkableMap") -> float:
     return float(np.count_nonzero(ga & gb) / union)
 
 
-def erode_walkable(wm: "WalkableMap", radius_m: float) -> "WalkableMap":
+def erode_walkable(wm: WalkableGrid, radius_m: float) -> WalkableGrid:
     """Robot-centre version of a GT walkable area: cells farther than radius_m from any
     non-walkable cell (outside the grid counts as non-walkable). Compare our maps to this."""
-    from scipy import ndimage
-
-    from vid2sim.factory.geometry.walkable import WalkableMap
-
     g = np.pad(wm.grid > 0, 1)
     dist = ndimage.distance_transform_edt(g)[1:-1, 1:-1] * wm.resolution
-    return WalkableMap((dist > radius_m).astype(np.uint8), wm.origin, wm.resolution)
+    return WalkableGrid((dist > radius_m).astype(np.uint8), wm.origin, wm.resolution)

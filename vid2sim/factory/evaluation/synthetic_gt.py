@@ -19,7 +19,7 @@ from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.street import generate_street
-from vid2sim.factory.geometry.walkable import WalkableMap
+from vid2sim.formats.walkable import WalkableGrid
 
 
 def street_config(synthetic_dir: Path) -> StreetConfig:
@@ -28,11 +28,11 @@ def street_config(synthetic_dir: Path) -> StreetConfig:
     return StreetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()})
 
 
-def crop_x(wm: WalkableMap, x0: float, x1: float) -> WalkableMap:
+def crop_x(wm: WalkableGrid, x0: float, x1: float) -> WalkableGrid:
     """The columns of a walkable map between world x0 and x1."""
     c = wm.world_to_cell(np.array([x0, x1]), np.zeros(2))[1]
     c0 = max(int(c[0]), 0)
-    return WalkableMap(wm.grid[:, c0:int(c[1])], wm.origin + np.array([c0 * wm.resolution, 0.0]),
+    return WalkableGrid(wm.grid[:, c0:int(c[1])], wm.origin + np.array([c0 * wm.resolution, 0.0]),
                        wm.resolution)
 
 
@@ -46,7 +46,7 @@ def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.nda
     return rc.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
 
 
-def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableMap,
+def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableGrid,
                  robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000) -> dict:
     """Pose ATE, collision-mesh accuracy (reconstruction -> GT obstacles, m), ground left in the
     collision mesh, and walkable IoU over the walked x range (the first `unseen_m` metres, which a
@@ -61,9 +61,9 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     scene = generate_street(street_config(synthetic_dir))
     rec = s * sample_surface(*mesh_arrays(collision), samples) @ R.T + t  # [S, 3] in GT frame
     dist = distance_to_mesh(rec, *scene.without_ground())  # [S] to the GT obstacles (no ground)
-    shifted = WalkableMap(walkable.grid, walkable.origin + t[:2], walkable.resolution)  # R ~ I, s ~ 1
+    shifted = WalkableGrid(walkable.grid, walkable.origin + t[:2], walkable.resolution)  # R ~ I, s ~ 1
     g, o, r = scene.walkable_grid(pad=robot_radius_m)
-    gt_map = erode_walkable(WalkableMap(g, o, r), robot_radius_m)
+    gt_map = erode_walkable(WalkableGrid(g, o, r), robot_radius_m)
     path = s * src @ R.T + t
     x0, x1 = path[:, 0].min() + unseen_m, path[:, 0].max()
     return {"matched_frames": len(frames), "ate_m": pose["rmse"], "ate_pct_of_path": pose["rmse_pct_of_path"],

@@ -4,9 +4,7 @@ Stage `walkable`: reads ground points (meshing's ground_points.npy), the collisi
 the camera path; writes `walkable.npz` (scene-bundle format: grid uint8 [H, W] 1 = walkable,
 origin float64 [2], resolution float64) plus `walkable.json` and the stage marker.
 
-Grid convention: grid[row, col], row along world +y, col along world +x; cell (r, c) covers
-x in [ox + c res, ox + (c + 1) res), y in [oy + r res, oy + (r + 1) res), where
-origin = (ox, oy) is the lower-left CORNER of cell [0, 0]. Its centre is origin + res / 2.
+Grid convention and the one reader: `vid2sim.formats.walkable` (WalkableGrid, load_walkable).
 
 Steps:
 1. ground evidence: ground-classified depth pixels back-projected to world (meshing), and
@@ -39,10 +37,10 @@ from scipy.spatial import cKDTree
 from vid2sim.factory.evaluation.geometry_metrics import points_by_spacing
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-NPZ_KEYS = ("grid", "origin", "resolution")
 
 
 class WalkableError(StageError):
@@ -77,71 +75,6 @@ class WalkableConfig:
     # noise_k x the ground-height noise (robust sigma of per-cell heights around the smoothed
     # map at the step scale; ~0 on exact depth, ~0.035 m on the splat demo); 0 disables
     noise_k: float = 6.0  # heavy-tailed: k = 3 / 4 / 6 gave walkable IoU 0.31 / 0.45 / 0.61 on the demo
-
-
-@dataclass
-class WalkableMap:
-    grid: np.ndarray  # [H, W] uint8, 1 = walkable
-    origin: np.ndarray  # [2] world (x, y) of the lower-left corner of cell [0, 0]
-    resolution: float
-
-    def __post_init__(self) -> None:
-        self.grid = np.asarray(self.grid, np.uint8)
-        self.origin = np.asarray(self.origin, np.float64).reshape(2)
-        self.resolution = float(self.resolution)
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        return self.grid.shape  # type: ignore[return-value]
-
-    def extent_max(self) -> np.ndarray:
-        """World (x, y) of the upper-right corner of the grid."""
-        return self.origin + np.array([self.grid.shape[1], self.grid.shape[0]]) * self.resolution
-
-    def area_m2(self) -> float:
-        return float(np.count_nonzero(self.grid)) * self.resolution ** 2
-
-    def world_to_cell(self, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(row, col) integer indices (may lie outside the grid)."""
-        c = np.floor((np.asarray(x) - self.origin[0]) / self.resolution).astype(np.int64)
-        r = np.floor((np.asarray(y) - self.origin[1]) / self.resolution).astype(np.int64)
-        return r, c
-
-    def cell_center(self, row: np.ndarray, col: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        return (self.origin[0] + (np.asarray(col) + 0.5) * self.resolution,
-                self.origin[1] + (np.asarray(row) + 0.5) * self.resolution)
-
-    def lookup(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Walkable flag (bool, same shape as x) at world points; False outside the grid."""
-        r, c = self.world_to_cell(x, y)
-        H, W = self.grid.shape
-        inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-        out = np.zeros(np.shape(r), bool)
-        out[inside] = self.grid[r[inside], c[inside]] > 0
-        return out
-
-    def save(self, path: Path) -> Path:
-        path = Path(path)
-        with open(path, "wb") as f:
-            np.savez_compressed(f, grid=self.grid, origin=self.origin,
-                                resolution=np.float64(self.resolution))
-        return path
-
-    @classmethod
-    def load(cls, path: Path) -> "WalkableMap":
-        """Read walkable.npz; raises WalkableError naming the file and the problem."""
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                missing = [k for k in NPZ_KEYS if k not in z.files]
-                if missing:
-                    raise WalkableError("bad_file", f"{path}: missing keys {missing}")
-                grid, origin, res = z["grid"], z["origin"], float(z["resolution"])
-        except (OSError, ValueError) as e:
-            raise WalkableError("bad_file", f"{path}: {e}") from e
-        if grid.ndim != 2 or origin.shape != (2,) or not res > 0:
-            raise WalkableError("bad_file", f"{path}: grid {grid.shape}, origin {origin.shape}, "
-                                f"resolution {res}")
-        return cls(grid, origin, res)
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -299,7 +232,7 @@ def path_component(free: np.ndarray, path_rc: np.ndarray, snap_cells: float) -> 
 
 
 def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
-                 camera_path: np.ndarray, conf: WalkableConfig) -> WalkableMap:
+                 camera_path: np.ndarray, conf: WalkableConfig) -> WalkableGrid:
     """Build the walkable map (see module docstring). ground_points [N, 3], camera_path [T, 3]."""
     gp = np.asarray(ground_points, np.float64).reshape(-1, 3)
     path = np.asarray(camera_path, np.float64).reshape(-1, 3)
@@ -324,7 +257,7 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
     grid = path_component(free, path_rc, conf.snap_m / res)
-    return WalkableMap(grid.astype(np.uint8), origin, res)
+    return WalkableGrid(grid.astype(np.uint8), origin, res)
 
 
 def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
@@ -345,7 +278,7 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     with Timer() as t:
         wm = walkable_map(ground_points, mesh, camera_path, conf)
     fresh_dir(out_dir)
-    wm.save(out_dir / "walkable.npz")
+    wm.save(out_dir / WALKABLE_NPZ)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
                    walkable_area_m2=round(wm.area_m2(), 3))
     (out_dir / "walkable.json").write_text(json.dumps(

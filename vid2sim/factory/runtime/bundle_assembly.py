@@ -21,7 +21,10 @@ import torch
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.runtime.stage_cache import Timer, is_done, load_record, mark_done, stage_key
 from vid2sim.factory.runtime.stage_cache import StageError
-from vid2sim.formats.bundle import BundleError, make_scene_json, write_bundle
+from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.errors import BundleError
+from vid2sim.formats.scene import make_scene_json
+from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
 
 STAGE = "bundle"
 
@@ -93,7 +96,7 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
         return bundle_dir
     with Timer() as t:
         clip = PosedClip.load(posed_dir)
-        walk = np.load(dirs["walkable"] / "walkable.npz")
+        walk = load_walkable(dirs["walkable"] / WALKABLE_NPZ)
         metrics = {"recon": _read_json(dirs["recon"] / "metrics.json"),
                    "sfm": _read_json(sfm_dir / "quality.json") if sfm_dir else {},
                    "meshing": _read_json(dirs["meshing"] / "meshing.json").get("summary", {}),
@@ -107,14 +110,14 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
             metrics=_scalars(metrics), config=conf,
             tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
         with tempfile.TemporaryDirectory() as tmp:
-            preview = render_preview(dirs["recon"] / "splats.ply", clip, walk["grid"], Path(tmp) / "p.png")
+            preview = render_preview(dirs["recon"] / "splats.ply", clip, walk.grid, Path(tmp) / "p.png")
             extras = {"visual_mesh.ply": dirs["meshing"] / "visual_mesh.ply"}
             colmap = posed_dir / "sparse"
             if colmap.is_dir():
                 extras["colmap"] = colmap
             write_bundle(bundle_dir, scene_json=scene, splats_ply=dirs["recon"] / "splats.ply",
                          collision_ply=dirs["meshing"] / "collision.ply",
-                         walkable=(walk["grid"], walk["origin"], float(walk["resolution"])),
+                         walkable=walk,
                          cameras=clip.cameras_table(), preview_png=preview, extras=extras,
                          overwrite=True)
     mark_done(out_dir, STAGE, key, {"scene_id": job.scene_id}, t.seconds)

@@ -67,11 +67,11 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
 
     from vid2sim.factory.sfm.posed import PosedClip
     from vid2sim.factory.evaluation.synthetic_gt import scene_errors
-    from vid2sim.factory.geometry.walkable import WalkableMap
+    from vid2sim.formats.walkable import load_walkable
 
     gt = scene_errors(PosedClip.load(Path(result.context["posed_dir"])), synth_dir,
                       trimesh.load(scene_dir / "collision.ply", force="mesh"),
-                      WalkableMap.load(scene_dir / "walkable.npz"))
+                      load_walkable(scene_dir / "walkable.npz"))
     preview = work / "preview.png"
     shutil.copyfile(scene_dir / "preview.png", preview)
     summary = {"scene_id": result.context["scene_id"], "seconds": round(time.perf_counter() - t0, 1),

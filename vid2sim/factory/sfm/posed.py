@@ -2,8 +2,7 @@
 reconstruction and meshing.
 
 On disk (a folder):
-  cameras.parquet  one row per frame: index, image (file name), timestamp, width, height,
-                   fx, fy, cx, cy, cam_to_world (16 float64, row-major 4x4, OpenCV axes), split
+  cameras.parquet  one row per frame, schema `vid2sim.formats.cameras.cameras_schema()`
   points.npz       xyz [M, 3] float64 (world), rgb [M, 3] uint8  (sparse SfM points)
   frame.json       world-frame facts: units, up axis, ground z, scale source, extras
 Images live in `images_dir` (pinhole, undistorted) and masks in `masks_dir`
@@ -21,19 +20,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-CAMERA_COLUMNS = ("index", "image", "timestamp", "width", "height", "fx", "fy", "cx", "cy",
-                  "cam_to_world", "split")
-
-
-def cameras_schema() -> pa.Schema:
-    """The cameras table schema shared by PosedClip and the scene bundle's cameras.parquet."""
-    return pa.schema([
-        ("index", pa.int32()), ("image", pa.string()), ("timestamp", pa.float64()),
-        ("width", pa.int32()), ("height", pa.int32()),
-        ("fx", pa.float64()), ("fy", pa.float64()), ("cx", pa.float64()), ("cy", pa.float64()),
-        ("cam_to_world", pa.list_(pa.float64(), 16)), ("split", pa.string()),
-    ])
-
+from vid2sim.formats.cameras import CAMERA_COLUMNS, CAMERAS_PARQUET, cameras_schema
 
 def holdout_split(n: int, every: int = 8) -> list[str]:
     """Paper protocol: every 8th frame (index % 8 == 0) is held out for testing."""
@@ -92,7 +79,7 @@ class PosedClip:
     def save(self, folder: Path) -> Path:
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
-        pq.write_table(self.cameras_table(), folder / "cameras.parquet")
+        pq.write_table(self.cameras_table(), folder / CAMERAS_PARQUET)
         np.savez(folder / "points.npz", xyz=np.asarray(self.points_xyz, np.float64),
                  rgb=np.asarray(self.points_rgb, np.uint8))
         info = dict(self.frame_info)
@@ -104,7 +91,7 @@ class PosedClip:
     @classmethod
     def load(cls, folder: Path) -> "PosedClip":
         folder = Path(folder)
-        table = pq.read_table(folder / "cameras.parquet").to_pylist()
+        table = pq.read_table(folder / CAMERAS_PARQUET).to_pylist()
         frames = []
         for r in table:
             K = np.array([[r["fx"], 0, r["cx"]], [0, r["fy"], r["cy"]], [0, 0, 1]], np.float64)

@@ -131,7 +131,8 @@ def _sha256(path: Path) -> str:
 def write_ground_truth_bundle(scene: StreetScene, clip: SyntheticClip, out_dir: Path,
                               conf: GTBundleConfig = GTBundleConfig(), overwrite: bool = True) -> Path:
     """Write the GT scene bundle to out_dir (validated by the registry's validate_bundle)."""
-    from vid2sim.formats.bundle import make_scene_json, write_bundle
+    from vid2sim.formats.bundle import write_bundle
+    from vid2sim.formats.scene import make_scene_json
     from vid2sim.splats.ply import write_ply
 
     c = scene.config
