@@ -25,10 +25,10 @@ import time
 import numpy as np
 import trimesh
 
-from vid2sim.factory.evaluation.geometry_metrics import (
-    chamfer_points, erode_walkable, grid_iou, sample_surface)
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
 from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street

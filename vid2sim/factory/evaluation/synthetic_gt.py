@@ -14,8 +14,8 @@ from pathlib import Path
 import numpy as np
 
 from vid2sim.factory.evaluation.poses import ate
-from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays, \
-    sample_surface
+from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.street import generate_street

@@ -34,8 +34,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.evaluation.geometry_metrics import points_by_spacing
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
