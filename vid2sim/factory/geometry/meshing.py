@@ -46,6 +46,7 @@ from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 class MeshingError(StageError):
@@ -355,7 +356,7 @@ def main(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path,
     may be a lazy generator, only consumed when the stage actually runs.
     """
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf, input_key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
     if not overwrite and is_done(out_dir, key):
         return out_dir
     with Timer() as t:

@@ -41,6 +41,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 class WalkableError(StageError):
@@ -267,7 +268,7 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     import trimesh
 
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf, input_key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
     if not overwrite and is_done(out_dir, key):
         return out_dir
     path = Path(collision_mesh_path)

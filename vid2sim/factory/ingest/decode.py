@@ -45,6 +45,7 @@ from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_v
 from vid2sim.versioning import to_jsonable
 
 STAGE = "decode"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass(frozen=True)
@@ -251,7 +252,7 @@ def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
     out_dir = Path(out_dir)
     src = source if isinstance(source, Source) else resolve_source(source)
     window = None if window is None else (float(window[0]), float(window[1]))
-    key = stage_key(STAGE, replace(conf, workers=1), src.sha256, list(window) if window else None)
+    key = stage_key(STAGE, STAGE_VERSION, replace(conf, workers=1), src.sha256, list(window) if window else None)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:

@@ -41,6 +41,7 @@ import pyarrow.parquet as pq
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "masks"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass(frozen=True)
@@ -300,7 +301,7 @@ def main(conf: MasksConf, decode_dir: Path, out_dir: Path, segmenter: Optional[S
     if len(files) < 2:
         raise StageError(STAGE, "too_few_frames", f"{decode_dir}: {len(files)} images")
     seg_id = conf.segmenter_path or (type(segmenter).__name__ if segmenter is not None else None)
-    key = stage_key(STAGE, conf, rec.key, seg_id)
+    key = stage_key(STAGE, STAGE_VERSION, conf, rec.key, seg_id)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:

@@ -19,7 +19,7 @@ import numpy as np
 import torch
 
 from vid2sim.factory.sfm.posed import PosedClip
-from vid2sim.factory.runtime.stage_cache import Timer, is_done, load_record, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import Timer, input_key, is_done, mark_done, stage_key
 from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.formats.bundle import write_bundle
 from vid2sim.formats.errors import BundleError
@@ -27,6 +27,7 @@ from vid2sim.formats.scene import make_scene_json
 from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
 
 STAGE = "bundle"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 def tag(key: str, value: object) -> str:
@@ -89,8 +90,9 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
     dirs = {k: Path(ctx[f"{k}_dir"]) for k in ("recon", "meshing", "walkable")}
     sfm_dir = Path(ctx["sfm_dir"]) if ctx.get("sfm_dir") else None  # absent for posed inputs
     posed_dir = Path(ctx["posed_dir"])
-    inputs = [rec.key if (rec := load_record(d)) else str(d) for d in (posed_dir, *dirs.values())]
-    key = stage_key(STAGE, job.scene_id, job.licence, job.spec.tags, *inputs)
+    inputs = [input_key(d) for d in (posed_dir, *dirs.values())]
+    key = stage_key(STAGE, STAGE_VERSION, {"scene_id": job.scene_id, "licence": job.licence, "tags": job.spec.tags},
+                    *inputs)
     bundle_dir = Path(out_dir) / "scene"
     if is_done(out_dir, key):
         return bundle_dir

@@ -33,6 +33,7 @@ from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "metric"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass
@@ -365,7 +366,7 @@ def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path) -> Path:
     rec_in = load_record(sfm_dir)
     if rec_in is None:
         raise StageError(STAGE, "missing_input", f"{sfm_dir} is not a finished sfm output")
-    key = stage_key(STAGE, conf, rec_in.key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, rec_in.key)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:

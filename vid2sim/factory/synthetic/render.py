@@ -35,6 +35,7 @@ from vid2sim.factory.synthetic.trajectory import walking_poses
 from vid2sim.versioning import to_jsonable
 
 STAGE = "synthetic_render"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass
@@ -209,7 +210,7 @@ def _ground_truth(conf: StreetConfig, T: np.ndarray, scene: StreetScene) -> dict
 def render_video(scene: StreetScene, conf: StreetConfig, out_dir: Path) -> SyntheticClip:
     """Render the walk through `scene` into out_dir (skipped when already finished for this config)."""
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf)
+    key = stage_key(STAGE, STAGE_VERSION, conf)
     if is_done(out_dir, key):
         return SyntheticClip.load(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
