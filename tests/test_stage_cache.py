@@ -26,7 +26,7 @@ def _frames_folder(tmp_path: Path, n: int = 12) -> Path:
     return folder
 
 
-def _chain(tmp_path: Path, frames: Path, dconf: decode.DecodeConf, mconf: masks.MasksConf) -> dict[str, tuple]:
+def _chain(tmp_path: Path, frames: Path, dconf: decode.DecodeConfig, mconf: masks.MasksConfig) -> dict[str, tuple]:
     """Run decode -> masks; return {stage: (marker key, marker mtime_ns)}."""
     d = decode.main(dconf, frames, tmp_path / "decode")
     m = masks.main(mconf, d, tmp_path / "masks")
@@ -40,7 +40,7 @@ def _rerun(before: dict, after: dict) -> set[str]:
 
 def test_changed_config_or_version_reruns_exactly_the_downstream_stages(tmp_path, monkeypatch):
     frames = _frames_folder(tmp_path)
-    dconf, mconf = decode.DecodeConf(workers=1, dup_flow_px=0.0), masks.MasksConf()
+    dconf, mconf = decode.DecodeConfig(workers=1, dup_flow_px=0.0), masks.MasksConfig()
     first = _chain(tmp_path, frames, dconf, mconf)
     same = _chain(tmp_path, frames, dconf, mconf)
     assert _rerun(first, same) == set()
@@ -67,7 +67,7 @@ def test_input_key_is_the_marker_key_or_the_content(tmp_path):
     assert input_key(frames) == k
     cv2.imwrite(str(frames / "000.png"), panning_frames(1, h=120, w=160, seed=5)[0])
     assert content_key(frames) != k  # image bytes count, not only names and sizes
-    d = decode.main(decode.DecodeConf(workers=1, dup_flow_px=0.0), frames, tmp_path / "decode")
+    d = decode.main(decode.DecodeConfig(workers=1, dup_flow_px=0.0), frames, tmp_path / "decode")
     assert input_key(d) == input_key(d / "images") == load_record(d).key
     with pytest.raises(StageError, match="missing_input"):
         input_key(tmp_path / "nowhere")

@@ -11,7 +11,7 @@ Writes into `out_dir`:
                      counts, face-detector facts, config
   stage.json         the done-marker (stage.py)
 
-Filters (defaults, see DecodeConf):
+Filters (defaults, see DecodeConfig):
   sampling   10 fps (the paper uses 30 fps x 15 s = 450 frames; 10 fps keeps 1/3 of the
              frames, enough overlap for SfM at walking speed and 3x cheaper on CPU)
   blur       variance of the Laplacian below 0.35 x the clip median (relative, so it
@@ -38,7 +38,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConf
+from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_video
@@ -49,7 +49,7 @@ STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass(frozen=True)
-class DecodeConf:
+class DecodeConfig:
     fps: float = 10.0  # target sampling rate; >= source fps keeps every frame
     max_side: int = 1024  # long side of written frames (never upscaled)
     blur_rel: float = 0.35  # drop if Laplacian variance < blur_rel * clip median
@@ -61,14 +61,14 @@ class DecodeConf:
     analysis_width: int = 320  # width of the grey copy used for optical flow
     jpeg_quality: int = 95
     image_fps: float = 1.0  # nominal rate for image-folder timestamps (index / image_fps)
-    faces: FaceConf = field(default_factory=FaceConf)
+    faces: FaceConfig = field(default_factory=FaceConfig)
     workers: int = 2  # processes for face detection + JPEG writing (dlib is single-threaded)
 
 
 PRESETS = {
-    "default": DecodeConf(),
-    "paper": DecodeConf(fps=30.0, max_side=1920),  # 30 fps, as in the paper
-    "fast": DecodeConf(fps=5.0, max_side=768, faces=FaceConf(upsample=0)),
+    "default": DecodeConfig(),
+    "paper": DecodeConfig(fps=30.0, max_side=1920),  # 30 fps, as in the paper
+    "fast": DecodeConfig(fps=5.0, max_side=768, faces=FaceConfig(upsample=0)),
 }
 
 
@@ -92,7 +92,7 @@ def _resize(img: np.ndarray, max_side: int) -> np.ndarray:
     return cv2.resize(img, (int(round(w * s)) // 2 * 2, int(round(h * s)) // 2 * 2), interpolation=cv2.INTER_AREA)
 
 
-def sample_video(path: Path, conf: DecodeConf, window: Optional[tuple[float, float]]) -> tuple[list[Sample], dict]:
+def sample_video(path: Path, conf: DecodeConfig, window: Optional[tuple[float, float]]) -> tuple[list[Sample], dict]:
     """Decode `path` and keep frames on a `conf.fps` time grid inside the window."""
     info = probe_video(path)
     start, end = (window or (0.0, None))
@@ -114,7 +114,7 @@ def sample_video(path: Path, conf: DecodeConf, window: Optional[tuple[float, flo
     return samples, facts
 
 
-def sample_images(files: list[Path], conf: DecodeConf) -> tuple[list[Sample], dict]:
+def sample_images(files: list[Path], conf: DecodeConfig) -> tuple[list[Sample], dict]:
     """Read an ordered image folder (every image is a sample; timestamps index / image_fps)."""
     samples, size = [], None
     for i, p in enumerate(files):
@@ -145,7 +145,7 @@ def median_flow(a: np.ndarray, b: np.ndarray, dis: "cv2.DISOpticalFlow") -> floa
     return float(np.median(np.linalg.norm(flow, axis=2)))
 
 
-def filter_samples(samples: list[Sample], conf: DecodeConf) -> dict:
+def filter_samples(samples: list[Sample], conf: DecodeConfig) -> dict:
     """Score every sample and set `reason` for dropped ones; raise on unusable clips."""
     n = len(samples)
     if n < conf.min_frames:
@@ -176,7 +176,7 @@ def filter_samples(samples: list[Sample], conf: DecodeConf) -> dict:
     return counts
 
 
-def _mark_duplicates(sharp: list[Sample], conf: DecodeConf) -> None:
+def _mark_duplicates(sharp: list[Sample], conf: DecodeConfig) -> None:
     """Drop frames whose median flow to the last kept frame is below `dup_flow_px`."""
     if not sharp:
         return
@@ -217,7 +217,7 @@ def _frames_table(samples: list[Sample], faces: dict[int, int]) -> pa.Table:
 _WORKER: dict = {}
 
 
-def _init_worker(face_conf: FaceConf, quality: int) -> None:
+def _init_worker(face_conf: FaceConfig, quality: int) -> None:
     _WORKER["blur"], _WORKER["quality"] = FaceBlurrer(face_conf), quality
 
 
@@ -230,7 +230,7 @@ def _blur_and_write(job: tuple[np.ndarray, str]) -> int:
     return len(boxes)
 
 
-def _write(samples: list[Sample], conf: DecodeConf, out_dir: Path) -> dict[int, int]:
+def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int, int]:
     """Blur faces in memory and write kept frames (in `conf.workers` processes); faces per sample."""
     images = out_dir / "images"
     images.mkdir()
@@ -246,7 +246,7 @@ def _write(samples: list[Sample], conf: DecodeConf, out_dir: Path) -> dict[int, 
     return dict(zip(kept, counts))
 
 
-def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
+def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
          window: Optional[tuple[float, float]] = None) -> Path:
     """Decode, filter, anonymise and write one clip; skip when done with the same key."""
     out_dir = Path(out_dir)

@@ -18,10 +18,10 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 
-from vid2sim.factory.ingest.clips import ClipsConf, ClipSpec, plan_clips
-from vid2sim.factory.ingest.decode import DecodeConf
+from vid2sim.factory.ingest.clips import ClipsConfig, ClipSpec, plan_clips
+from vid2sim.factory.ingest.decode import DecodeConfig
 from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest, parse_row
-from vid2sim.factory.ingest.masks import MasksConf
+from vid2sim.factory.ingest.masks import MasksConfig
 from vid2sim.factory.geometry.meshing import MeshingConfig
 from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
 from vid2sim.factory.recon.config import ReconConfig
@@ -52,9 +52,9 @@ class PipelineConfig:
     """Every stage's config; saved with each scene (pipeline hash = hash of this)."""
 
     preset: str = "fast"
-    clips: ClipsConf = field(default_factory=ClipsConf)
-    decode: DecodeConf = field(default_factory=DecodeConf)
-    masks: MasksConf = field(default_factory=MasksConf)
+    clips: ClipsConfig = field(default_factory=ClipsConfig)
+    decode: DecodeConfig = field(default_factory=DecodeConfig)
+    masks: MasksConfig = field(default_factory=MasksConfig)
     sfm: Any = None
     metric: Any = None
     recon: ReconConfig = field(default_factory=lambda: recon_preset("fast"))
