@@ -85,10 +85,8 @@ def _record_out(rec, as_json: bool, title: str) -> None:
 def add(bundle_dir: str = typer.Argument(..., help="Scene bundle folder."),
         registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Validate a bundle, store its artifacts and commit a new scene version."""
-    reg = _open(registry)
-    before = reg.version if reg.manifest.exists() else -1
-    rec = reg.add(bundle_dir)
-    noop = reg.version == before
+    res = _open(registry).add_result(bundle_dir)
+    rec, noop = res.record, res.noop
     if as_json:
         _echo_json({**rec.to_dict(), "noop": noop})
     else:
@@ -224,9 +222,12 @@ def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> No
 @handles_errors
 def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
        grace_seconds: float = typer.Option(3600.0, "--grace-seconds", help="Keep unreferenced blobs younger than this."),
-       dry_run: bool = typer.Option(False, "--dry-run")) -> None:
-    """Delete blobs no manifest row references (never a referenced one)."""
-    removed = _open(registry).gc(grace_s=grace_seconds, dry_run=dry_run)
+       dry_run: bool = typer.Option(False, "--dry-run"),
+       force: bool = typer.Option(False, "--force", help="Delete unreferenced blobs even when the manifest "
+                                  "log looks damaged or blobs exist that nothing accounts for (lost history).")
+       ) -> None:
+    """Delete blobs of adds that never committed (never a referenced one); refuses on lost history."""
+    removed = _open(registry).gc(grace_s=grace_seconds, dry_run=dry_run, force=force)
     if as_json:
         _echo_json({"removed": removed, "dry_run": dry_run})
     else:

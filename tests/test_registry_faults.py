@@ -1,0 +1,156 @@
+"""Issue 11 faults on real files: lost or damaged manifest logs, unaccounted and corrupt blobs.
+
+Each test damages a real registry the way a user or a crash would (deleting or truncating real
+Delta log files, corrupting real blobs) and checks that the registry says so instead of looking
+healthy, and that `gc` never deletes blobs of scenes whose history it cannot see.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from registry_fixtures import make_bundle
+
+from vid2sim.registry import Registry
+from vid2sim.registry.errors import HistoryLost, RegistryNotFound
+
+LOG = Path("manifests") / "_delta_log"
+
+
+def _registry(tmp_path: Path, n: int = 4) -> Registry:
+    reg = Registry(tmp_path / "reg")
+    for i in range(n):
+        reg.add(make_bundle(tmp_path / f"b{i}", f"s{i}", seed=i))
+    return reg
+
+
+def _stored(reg: Registry) -> set[str]:
+    return {b.sha256 for b in reg.blobs.list() if not b.is_temp}
+
+
+def _cli(*args: str):
+    """`vid2sim registry ARGS` in-process (result has returncode, stdout, stderr)."""
+    from typer.testing import CliRunner
+
+    from vid2sim.cli import app
+
+    r = CliRunner().invoke(app, ["registry", *args])
+    r.returncode = r.exit_code
+    return r
+
+
+def _proc(*args: str) -> subprocess.CompletedProcess:
+    """`vid2sim registry ARGS` in a real process (to see aborts and exit codes as a shell would)."""
+    code = "from vid2sim.cli import app; app(prog_name='vid2sim')"
+    return subprocess.run([sys.executable, "-c", code, "registry", *args], capture_output=True, text=True,
+                          timeout=120)
+
+
+@pytest.mark.parametrize("gone", ["manifests/_delta_log", "manifests"])
+def test_deleted_log_is_lost_history_and_gc_refuses(tmp_path, gone):
+    reg = _registry(tmp_path)
+    blobs = _stored(reg)
+    shutil.rmtree(Path(reg.root) / gone)
+    fresh = Registry(reg.root)
+    with pytest.raises(HistoryLost, match="manifest log is missing"):
+        fresh.list()
+    problems = fresh.verify()
+    assert problems and "lost its history" in problems[0]
+    with pytest.raises(HistoryLost):
+        fresh.gc(grace_s=0)
+    with pytest.raises(HistoryLost):  # nothing is committed on top of lost history
+        fresh.add(tmp_path / "b0")
+    assert _stored(fresh) == blobs and not (Path(reg.root) / LOG).exists()
+    assert sorted(fresh.gc(grace_s=0, force=True)) == sorted(blobs)  # explicit force does it
+    assert _stored(fresh) == set()
+
+
+def _log_file(reg: Registry, v: int) -> Path:
+    return Path(reg.root) / LOG / f"{v:020d}.json"
+
+
+def test_truncated_middle_log_file_is_reported_not_hidden(tmp_path):
+    reg = _registry(tmp_path)  # versions: 0 create, 1..4 one add each
+    blobs = _stored(reg)
+    _log_file(reg, 2).write_bytes(b"")  # the commit that added s1
+    fresh = Registry(reg.root)
+    for read in (fresh.list, fresh.history, lambda: fresh.show("s0")):
+        with pytest.raises(HistoryLost, match="version 2 is empty"):
+            read()
+    problems = fresh.verify()
+    assert any("version 2 is empty" in p for p in problems)
+    assert any("referenced by no manifest row" in p for p in problems)  # s1's own blobs
+    with pytest.raises(HistoryLost, match="gc refused"):
+        fresh.gc(grace_s=0)
+    with pytest.raises(HistoryLost, match="version 2 is empty"):
+        fresh.add(make_bundle(tmp_path / "b9", "s9", seed=9))
+    assert _stored(fresh) == blobs and len(list((Path(reg.root) / LOG).glob("*.json"))) == 5
+
+
+@pytest.mark.parametrize("damage", ["delete", "garbage"])
+def test_missing_or_garbled_log_file_is_one_named_line(tmp_path, damage):
+    reg = _registry(tmp_path)
+    f = _log_file(reg, 2)
+    f.unlink() if damage == "delete" else f.write_text("{not json\n")
+    r = _cli("list", "-r", reg.root)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "manifest log" in r.stderr and "Traceback" not in r.stderr
+    v = _cli("verify", "-r", reg.root)
+    assert v.returncode == 1 and "version 2" in v.stderr
+    assert _cli("gc", "-r", reg.root, "--grace-seconds", "0").returncode == 2
+
+
+def test_deleted_manifest_data_file_is_named_error_not_abort(tmp_path):
+    reg = _registry(tmp_path)
+    data = sorted((Path(reg.root) / "manifests").glob("*.parquet"))
+    data[1].unlink()
+    r = _proc("list", "-r", reg.root)
+    assert r.returncode == 2 and "data file" in r.stderr and data[1].name in r.stderr, (r.returncode, r.stderr)
+    v = _cli("verify", "-r", reg.root, "--json")
+    assert v.returncode == 1 and any("data file" in p for p in json.loads(v.stdout)["problems"])
+
+
+def test_unaccounted_blob_beside_intact_log(tmp_path):
+    reg = _registry(tmp_path, 1)
+    stray = tmp_path / "stray.bin"
+    stray.write_bytes(b"a scene whose commit is gone" * 10)
+    from vid2sim.registry.blobs import sha256_file
+
+    sha = sha256_file(stray)[0]
+    reg.blobs.put_file(stray, sha)  # stored without an intent: what a lost commit leaves behind
+    problems = reg.verify()
+    assert len(problems) == 1 and sha in problems[0]
+    with pytest.raises(HistoryLost, match="1 blob"):
+        reg.gc(grace_s=0)
+    assert reg.gc(grace_s=0, force=True) == [sha]
+    assert reg.verify() == []
+
+
+def test_killed_add_leaves_an_intent_gc_cleans_without_force(tmp_path):
+    reg = _registry(tmp_path, 1)
+    from vid2sim.registry import validate_bundle
+
+    arts, _ = reg._store_blobs(validate_bundle(make_bundle(tmp_path / "k", "k", seed=5)))  # then "killed"
+    assert reg.verify() == []  # an add in flight is not lost history
+    removed = set(reg.gc(grace_s=0))
+    assert removed and removed <= {a.sha256 for a in arts}
+    assert reg.blobs.intents() == [] and reg.verify() == []
+
+
+def test_read_only_commands_never_create_a_registry(tmp_path):
+    typo = tmp_path / "regsitry"
+    for args in (["list"], ["show", "a"], ["history"], ["verify"], ["gc", "--dry-run"], ["query", "select 1"]):
+        r = _cli(*args, "-r", str(typo))
+        assert r.returncode == 2 and "no registry at" in r.stderr, (args, r.stderr)
+        assert not typo.exists()
+    with pytest.raises(RegistryNotFound):
+        Registry(typo).list()
+    afile = tmp_path / "file.txt"
+    afile.write_text("x")
+    r = _cli("list", "-r", str(afile))
+    assert r.returncode == 2 and "is a file" in r.stderr
