@@ -91,11 +91,14 @@ def slug(text: str, limit: int = 40) -> str:
 
 
 def scene_id_for(spec: ClipSpec, stem: str) -> str:
-    """Readable, unique, registry-valid id: <stem>-<sha8>[-<start>s]."""
-    sid = f"{slug(stem)}-{spec.source.sha256[:8]}"
+    """Registry id naming the clip: <stem>-<sha8>[-<start>-<end>s], the window exact to 1 ms.
+
+    Re-ingesting a clip gives the same id (a new version); any other window, another scene.
+    """
+    tail = f"-{spec.source.sha256[:8]}"
     if spec.window is not None:
-        sid += f"-{int(round(spec.window[0])):04d}s"
-    return sid
+        tail += "-" + "-".join(f"{t:.3f}".rstrip("0").rstrip(".") for t in spec.window) + "s"
+    return slug(stem, limit=64 - len(tail)) + tail
 
 
 def rows_from_inputs(inputs: Sequence[str], licence: str = "unknown",
