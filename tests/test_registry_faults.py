@@ -154,3 +154,59 @@ def test_read_only_commands_never_create_a_registry(tmp_path):
     afile.write_text("x")
     r = _cli("list", "-r", str(afile))
     assert r.returncode == 2 and "is a file" in r.stderr
+
+
+def _corrupt(reg: Registry, sha: str) -> None:
+    p = reg.blobs.path(sha)
+    data = bytearray(p.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    p.write_bytes(bytes(data))
+
+
+def test_readd_and_shared_content_repair_a_corrupt_blob(tmp_path):
+    reg = _registry(tmp_path, 1)
+    splats = reg.show("s0").artifact("splats.ply").sha256
+    _corrupt(reg, splats)
+    assert reg.add_result(tmp_path / "b0").noop  # same content: no new version...
+    assert reg.verify() == []  # ...but the stored bytes were checked and rewritten
+    collision = reg.show("s0").artifact("collision.ply").sha256
+    _corrupt(reg, collision)
+    other = reg.add(make_bundle(tmp_path / "c", "other", seed=3))  # shares collision.ply bytes
+    assert other.artifact("collision.ply").sha256 == collision and reg.verify() == []
+    assert (reg.checkout("s0", dest=tmp_path / "co") / "collision.ply").is_file()
+
+
+def test_verify_repair_from_bundle_folder(tmp_path):
+    reg = _registry(tmp_path, 2)
+    s0 = reg.show("s0")
+    _corrupt(reg, s0.artifact("splats.ply").sha256)
+    reg.blobs.path(s0.artifact("preview.png").sha256).unlink()
+    r = _cli("verify", "-r", reg.root, "--repair")
+    assert r.returncode == 2 and "--from" in r.stderr
+    r = _cli("verify", "-r", reg.root, "--repair", "--from", str(tmp_path / "b1"), "--json")
+    assert r.returncode == 1 and len(json.loads(r.stdout)["problems"]) == 2  # b1 holds other bytes
+    r = _cli("verify", "-r", reg.root, "--repair", "--from", str(tmp_path / "b0"), "--json")
+    out = json.loads(r.stdout)
+    assert r.returncode == 0 and out["ok"] and len(out["repaired"]) == 2, r.output
+    assert reg.verify() == []
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(300)
+def test_noop_flag_right_under_concurrent_adds(tmp_path):
+    import multiprocessing as mp
+
+    from registry_fixtures import cli_add_worker
+
+    reg = _registry(tmp_path, 1)
+    same = str(make_bundle(tmp_path / "same", "same", seed=11))
+    own = [str(make_bundle(tmp_path / f"own{i}", f"own{i}", seed=20 + i)) for i in range(2)]
+    jobs = [same] * 2 + own
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as m:
+        barrier = m.Barrier(len(jobs))
+        with ctx.Pool(len(jobs)) as pool:
+            out = pool.starmap(cli_add_worker, [(reg.root, b, barrier) for b in jobs])
+    assert sorted(o["noop"] for o in out[:2]) == [False, True]  # one commit of the shared bundle
+    assert not any(o["noop"] for o in out[2:])
+    assert Registry(reg.root).version == 1 + 3  # s0, then three commits

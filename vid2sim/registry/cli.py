@@ -204,16 +204,24 @@ def split(seed: int = typer.Option(0, "--seed"),
 
 @app.command()
 @handles_errors
-def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
-    """Re-hash every referenced artifact; exit 1 naming any missing or corrupt one."""
-    problems = _open(registry).verify()
+def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
+           repair: bool = typer.Option(False, "--repair", help="Rewrite missing/corrupt blobs from --from folders."),
+           from_: List[str] = typer.Option([], "--from", help="Bundle folder holding good copies (repeat).")) -> None:
+    """Check the manifest log and re-hash every blob; exit 1 naming each problem."""
+    reg = _open(registry)
+    if repair and not from_:
+        raise ValueError("--repair needs --from BUNDLE_DIR (a folder holding good copies of the artifacts)")
+    repaired = reg.repair(from_) if repair else []
+    for line in repaired if not as_json else []:
+        typer.echo(line)
+    problems = reg.verify()
     if as_json:
-        _echo_json({"ok": not problems, "problems": problems})
+        _echo_json({"ok": not problems, "problems": problems, **({"repaired": repaired} if repair else {})})
     elif problems:
         for p in problems:
             typer.secho(p, fg=typer.colors.RED, err=True)
     else:
-        typer.echo("ok: every referenced artifact is present and intact")
+        typer.echo("ok: manifest log continuous, every referenced artifact present and intact, no stray blobs")
     if problems:
         raise typer.Exit(1)
 

@@ -365,6 +365,30 @@ class Registry:
                 problems.append((f"corrupt blob {sha} (content hashes to {got}, {size} bytes) for {where}", sha))
         return problems
 
+    def repair(self, sources: Sequence[str | os.PathLike]) -> list[str]:
+        """Rewrite missing or corrupt referenced blobs from files under `sources` (bundle folders).
+
+        A file is used only when its size and sha256 match the blob's. Returns what was repaired.
+        """
+        _, table = self._rows()
+        sizes = {a["sha256"]: a["size"] for arts in table.column("artifacts").to_pylist() for a in arts}
+        bad = {sha for _, sha in self._blob_problems(table)}
+        by_size: dict[int, set[str]] = {}
+        for sha in bad:
+            by_size.setdefault(sizes[sha], set()).add(sha)
+        done = []
+        for src in sources:
+            if not Path(src).is_dir():
+                raise RegistryError(f"--from {src}: not a folder")
+            for f in sorted(p for p in Path(src).rglob("*") if p.is_file()):
+                if bad and f.stat().st_size in by_size:
+                    sha = sha256_file(f)[0]
+                    if sha in bad:
+                        self.blobs.put_file(f, sha)
+                        bad.discard(sha)
+                        done.append(f"repaired blob {sha} from {f}")
+        return done
+
     def referenced(self, check: bool = True) -> set[str]:
         return _refs(self._rows(check=check)[1])
 
