@@ -13,8 +13,9 @@ from typing import Optional
 
 import numpy as np
 
-from vid2sim.factory.posed import PosedClip, PosedFrame
-from vid2sim.registry.bundle import make_scene_json, write_bundle
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
+from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.scene import make_scene_json
 
 
 def write_splats_ply(path: Path, n: int = 300, seed: int = 0, sh_rest: int = 0) -> Path:
@@ -156,10 +157,7 @@ def cli_add_worker(root: str, bundle: str, barrier) -> dict:
 
     from typer.testing import CliRunner
 
-    try:  # the registry sub-app alone (the full CLI imports torch: slow to spawn)
-        from vid2sim.cli.registry import app
-    except ImportError:
-        from vid2sim.registry.cli import app
+    from vid2sim.cli.registry import app  # the registry sub-app alone: quick to spawn
 
     barrier.wait()
     r = CliRunner().invoke(app, ["add", bundle, "-r", root, "--json"])

@@ -8,8 +8,8 @@ import yaml
 from ingest_media import make_video
 from registry_fixtures import make_bundle
 
-from vid2sim.factory.manifest import load_manifest
-from vid2sim.factory.pipeline import PipelineConfig, plan_jobs
+from vid2sim.factory.ingest.clip_list import load_manifest
+from vid2sim.factory.runtime.pipeline import PipelineConfig, plan_jobs
 from vid2sim.registry import Registry
 
 
@@ -38,7 +38,7 @@ def test_windows_of_one_video_are_different_scenes(tmp_path):
 
 
 def test_long_stem_still_gives_a_valid_id(tmp_path):
-    from vid2sim.registry.bundle import is_valid_scene_id
+    from vid2sim.formats.scene import is_valid_scene_id
 
     make_video(tmp_path / ("a" * 80 + ".mp4"), n=10, fps=10)
     m = _manifest(tmp_path / "m.yaml", [{"source": "a" * 80 + ".mp4", "licence": "MIT",

@@ -37,7 +37,7 @@ def _cli(*args: str):
     """`vid2sim registry ARGS` in-process (result has returncode, stdout, stderr)."""
     from typer.testing import CliRunner
 
-    from vid2sim.cli import app
+    from vid2sim.cli.app import app
 
     r = CliRunner().invoke(app, ["registry", *args])
     r.returncode = r.exit_code
@@ -46,9 +46,8 @@ def _cli(*args: str):
 
 def _proc(*args: str) -> subprocess.CompletedProcess:
     """`vid2sim registry ARGS` in a real process (to see aborts and exit codes as a shell would)."""
-    code = "from vid2sim.cli import app; app(prog_name='vid2sim')"
-    return subprocess.run([sys.executable, "-c", code, "registry", *args], capture_output=True, text=True,
-                          timeout=120)
+    return subprocess.run([sys.executable, "-m", "vid2sim.cli", "registry", *args], capture_output=True,
+                          text=True, timeout=120)
 
 
 @pytest.mark.parametrize("gone", ["manifests/_delta_log", "manifests"])
