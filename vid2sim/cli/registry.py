@@ -263,10 +263,17 @@ def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 @app.command()
 @handles_errors
 def query(sql: str = typer.Argument(..., help="DuckDB SQL over tables `scenes` (all versions) and `latest`."),
-          registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt) -> None:
-    """Run SQL over the manifests."""
-    table = _open(registry).query(sql, as_of=as_of)
+          registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt,
+          max_rows: int = typer.Option(1000, "--max-rows", min=1, help="Print at most this many rows."),
+          memory: str = typer.Option("512MB", "--memory", help="DuckDB memory limit.")) -> None:
+    """Read-only SQL over the manifests (one SELECT; no files, URLs, extensions; capped)."""
+    from vid2sim.registry.query import QueryLimits
+
+    table, more = _open(registry).query_head(sql, as_of=as_of, limits=QueryLimits(memory=memory, max_rows=max_rows))
     rows = table.to_pylist()
+    if more:
+        typer.secho(f"note: showing the first {max_rows} rows; the result has more (--max-rows, or add LIMIT)",
+                    fg=typer.colors.YELLOW, err=True)
     if as_json:
         _echo_json(rows)
         return

@@ -38,6 +38,7 @@ from vid2sim.formats.bundle import BundleInfo, validate_bundle
 from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
 from vid2sim.registry.errors import HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
 from vid2sim.registry.manifest import AsOf, ManifestTable, now_utc
+from vid2sim.registry.query import QueryError, QueryLimits, run_query
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
                                       records)
 from vid2sim.registry.split import Split, SplitConfig, make_split
@@ -190,26 +191,17 @@ class Registry:
         return records(table.sort_by([("created_at", "ascending"), ("scene_id", "ascending"),
                                       ("version", "ascending")]))
 
-    def query(self, sql: str, as_of: AsOf = None) -> pa.Table:
-        """Run DuckDB SQL over the manifest: table `scenes` (all versions) and view `latest`."""
-        import duckdb
+    def query(self, sql: str, as_of: AsOf = None, limits: QueryLimits = QueryLimits()) -> pa.Table:
+        """Read-only DuckDB SQL over `scenes` (all versions) and `latest`; errors past `max_rows`."""
+        table, more = self.query_head(sql, as_of, limits)
+        if more:
+            raise QueryError(f"query returned more than {limits.max_rows} rows: add a LIMIT or aggregate")
+        return table
 
-        _, scenes = self._rows(as_of)
-        con = duckdb.connect()
-        try:
-            con.register("scenes", scenes)
-            con.execute("CREATE VIEW latest AS SELECT * FROM scenes "
-                        "QUALIFY row_number() OVER (PARTITION BY scene_id ORDER BY version DESC) = 1")
-            try:
-                rel = con.sql(sql)
-                if rel is None:  # a statement without a result
-                    return pa.table({})
-                fetch = getattr(rel, "to_arrow_table", None) or rel.arrow  # duckdb 2.x / 1.x
-                return fetch()
-            except duckdb.Error as e:
-                raise RegistryError(f"query failed: {e}") from None
-        finally:
-            con.close()
+    def query_head(self, sql: str, as_of: AsOf = None, limits: QueryLimits = QueryLimits()
+                   ) -> tuple[pa.Table, bool]:
+        """(first `limits.max_rows` rows, whether there were more); see `vid2sim.registry.query`."""
+        return run_query(self._rows(as_of)[1], sql, limits)
 
     def split(self, seed: int = 0, test_fraction: float = 0.2, test_groups: Optional[Sequence[str]] = None,
               train_sizes: Sequence[int] = (), tags: Sequence[str] = (),
