@@ -484,6 +484,8 @@ class Registry:
         """
         rec = self.show(check_scene_id(scene_id), version, as_of=as_of)
         out = Path(dest) if dest is not None else Path("vid2sim-checkouts") / rec.ref
+        if out.exists() and not out.is_dir():
+            raise RegistryError(f"{out}: checkout destination is a file, not a folder")
         marker = out / CHECKOUT_MARKER
         if marker.is_file():
             done = json.loads(marker.read_text())

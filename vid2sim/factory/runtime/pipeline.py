@@ -26,7 +26,7 @@ from vid2sim.factory.geometry.meshing import MeshingConfig
 from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.config import preset as recon_preset
-from vid2sim.factory.ingest.sources import resolve_source
+from vid2sim.factory.ingest.sources import redact_uri, resolve_source
 from vid2sim.factory.geometry.splat_views import SplatViewConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
 from vid2sim.factory.geometry.walkable import WalkableConfig
@@ -127,7 +127,7 @@ def plan_jobs(rows: Sequence[ManifestRow], conf: PipelineConfig, cache_dir: Opti
                 resolve_source(row.source, expected_sha256=row.sha256)
             specs = plan_clips(row, source, conf.clips)
         except StageError as e:
-            failed.append(ClipResult(row.source, False, e.stage, e.reason, e.detail, {}, {}))
+            failed.append(ClipResult(redact_uri(row.source), False, e.stage, e.reason, e.detail, {}, {}))
             continue
         stem = Path(row.source.split("?")[0].rstrip("/")).name.rsplit(".", 1)[0]
         jobs.extend(ClipJob(s, scene_id_for(s, stem), row.licence) for s in specs)
