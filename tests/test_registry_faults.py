@@ -209,3 +209,11 @@ def test_noop_flag_right_under_concurrent_adds(tmp_path):
     assert sorted(o["noop"] for o in out[:2]) == [False, True]  # one commit of the shared bundle
     assert not any(o["noop"] for o in out[2:])
     assert Registry(reg.root).version == 1 + 3  # s0, then three commits
+
+
+def test_checkout_dest_that_is_a_file_is_one_line(tmp_path):
+    reg = _registry(tmp_path, 1)
+    f = tmp_path / "taken"
+    f.write_text("x")
+    r = _cli("checkout", "s0", "--dest", str(f), "-r", reg.root)
+    assert r.returncode == 2 and "is a file" in r.stderr and f.read_text() == "x"
