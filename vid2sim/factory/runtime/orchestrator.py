@@ -75,7 +75,9 @@ def _run_stage(fn: Callable[[dict], dict], stage_name: str, context: dict) -> di
 
 
 def ensure_ray(address: Optional[str] = None, num_cpus: Optional[int] = None) -> None:
-    """Connect to `address`, or start an embedded local Ray runtime once."""
+    """Connect to `address`, or start an embedded local Ray runtime once (num_cpus >= 1)."""
+    if num_cpus is not None and num_cpus < 1:
+        raise ValueError(f"num_cpus={num_cpus}: the local Ray runtime needs at least 1 CPU")
     if ray.is_initialized():
         return
     if address:

@@ -26,7 +26,7 @@ from vid2sim.factory.geometry.meshing import MeshingConfig
 from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.config import preset as recon_preset
-from vid2sim.factory.ingest.sources import resolve_source
+from vid2sim.factory.ingest.sources import redact_uri, resolve_source
 from vid2sim.factory.geometry.splat_views import SplatViewConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
 from vid2sim.factory.geometry.walkable import WalkableConfig
@@ -91,11 +91,14 @@ def slug(text: str, limit: int = 40) -> str:
 
 
 def scene_id_for(spec: ClipSpec, stem: str) -> str:
-    """Readable, unique, registry-valid id: <stem>-<sha8>[-<start>s]."""
-    sid = f"{slug(stem)}-{spec.source.sha256[:8]}"
+    """Registry id naming the clip: <stem>-<sha8>[-<start>-<end>s], the window exact to 1 ms.
+
+    Re-ingesting a clip gives the same id (a new version); any other window, another scene.
+    """
+    tail = f"-{spec.source.sha256[:8]}"
     if spec.window is not None:
-        sid += f"-{int(round(spec.window[0])):04d}s"
-    return sid
+        tail += "-" + "-".join(f"{t:.3f}".rstrip("0").rstrip(".") for t in spec.window) + "s"
+    return slug(stem, limit=64 - len(tail)) + tail
 
 
 def rows_from_inputs(inputs: Sequence[str], licence: str = "unknown",
@@ -124,7 +127,7 @@ def plan_jobs(rows: Sequence[ManifestRow], conf: PipelineConfig, cache_dir: Opti
                 resolve_source(row.source, expected_sha256=row.sha256)
             specs = plan_clips(row, source, conf.clips)
         except StageError as e:
-            failed.append(ClipResult(row.source, False, e.stage, e.reason, e.detail, {}, {}))
+            failed.append(ClipResult(redact_uri(row.source), False, e.stage, e.reason, e.detail, {}, {}))
             continue
         stem = Path(row.source.split("?")[0].rstrip("/")).name.rsplit(".", 1)[0]
         jobs.extend(ClipJob(s, scene_id_for(s, stem), row.licence) for s in specs)
