@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import hardware_line  # noqa: E402
 from env_scenes import build  # noqa: E402
 from vid2sim.factory.recon.losses import ssim_map  # noqa: E402
-from vid2sim.factory.walkable import WalkableMap  # noqa: E402
+from vid2sim.formats.walkable import WalkableGrid, load_walkable  # noqa: E402
 from vid2sim.splats import RasterSettings, read_ply  # noqa: E402
 from vid2sim.splats.cpu import StaticScene  # noqa: E402
 from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
@@ -45,7 +45,7 @@ from vid2sim.splats.cpu.static_kernels import cull_cells  # noqa: E402
 W, H = 128, 72
 
 
-def snap(grid: WalkableMap, xy: np.ndarray) -> np.ndarray:
+def snap(grid: WalkableGrid, xy: np.ndarray) -> np.ndarray:
     """Nearest walkable cell centre of each point xy [P, 2]."""
     rows, cols = np.nonzero(grid.grid)
     cx, cy = grid.cell_center(rows, cols)
@@ -54,7 +54,7 @@ def snap(grid: WalkableMap, xy: np.ndarray) -> np.ndarray:
     return cells[d.argmin(1)]
 
 
-def path_poses(bundle: Path, grid: WalkableMap, n: int) -> tuple[np.ndarray, np.ndarray]:
+def path_poses(bundle: Path, grid: WalkableGrid, n: int) -> tuple[np.ndarray, np.ndarray]:
     """n poses along the walked path (camera centres), snapped to the walkable map."""
     c2w = np.stack(pq.read_table(bundle / "cameras.parquet").column("cam_to_world").to_numpy(
         zero_copy_only=False)).reshape(-1, 4, 4)
@@ -65,7 +65,7 @@ def path_poses(bundle: Path, grid: WalkableMap, n: int) -> tuple[np.ndarray, np.
     return snap(grid, path[idx]), yaw
 
 
-def random_poses(grid: WalkableMap, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def random_poses(grid: WalkableGrid, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     rows, cols = np.nonzero(grid.grid)
     pick = rng.integers(0, len(rows), n)
@@ -151,7 +151,7 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
     if bundle is None:
         return
     model = read_ply(bundle / "splats.ply")
-    grid = WalkableMap.load(bundle / "walkable.npz")
+    grid = load_walkable(bundle / "walkable.npz")
     xy, yaw = path_poses(bundle, grid, args.poses)
     cams = robot_cameras(xy, yaw)
     st = RasterSettings(W, H, active_sh_degree=model.sh_degree)

@@ -31,7 +31,7 @@ def find_bundle(name: str) -> Optional[Path]:
 
 
 def _ingest(name: str, video: str, licence: str, capture_height: float) -> Path:
-    from vid2sim.factory.pipeline import ingest, preset
+    from vid2sim.factory.runtime.pipeline import ingest, preset
 
     work = CACHE / name
     report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=preset("fast"),
