@@ -78,9 +78,10 @@ class SceneBatch:
     def render(self, cameras: Sequence[Camera], scene_ids: Optional[Sequence[int]] = None,
                settings: Optional[RasterSettings] = None,
                background: Sequence[float] = (0.0, 0.0, 0.0), blend_cap: int = 0,
-               n_workers: Optional[int] = None) -> EnvFrames:
+               t_stop: float = 0.0, n_workers: Optional[int] = None) -> EnvFrames:
         """Render camera i of scene scene_ids[i] (default all 0); every camera has the
-        settings' size. blend_cap > 0 stops a pixel after that many blends (approximate)."""
+        settings' size. Approximations (off by default = exact): blend_cap > 0 stops a pixel
+        after that many blends; t_stop > 0 once its transmittance is below t_stop."""
         c0 = cameras[0]
         st = settings or RasterSettings(c0.width, c0.height)
         W, H, N = st.width, st.height, len(cameras)
@@ -105,7 +106,7 @@ class SceneBatch:
                       self.means, self.cov, self.opacity, self.cut, self.normal, self.rgb,
                       self.sh, min(st.active_sh_degree, self.sh_degree), views, campos, cams,
                       W, H, kernel_tile(st.tile_size), float(st.near), float(st.far),
-                      cov_alpha, int(blend_cap), bg, sel, fo, box, radii, color, rgb, alpha,
+                      cov_alpha, int(blend_cap), float(t_stop), bg, sel, fo, box, radii, color, rgb, alpha,
                       depth, blends, stats, workers)
         t = torch.from_numpy
         return EnvFrames(rgb=t(rgb), alpha=t(alpha), depth=t(depth), blends=t(blends),

@@ -68,14 +68,16 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
 
 
 @njit(cache=True)
-def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, T, acc, cnt, live, color,
-                   alpha, depth, blends_px, contrib):
+def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
+                   color, alpha, depth, blends_px, contrib):
     """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
 
     T [P], acc [P, 4], cnt [P], live [P] are scratch (P >= tile pixels); writes color
     [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated z) and blends_px
     [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
-    blend weights alpha * T at its row inst[s+k]. Returns the number of blends."""
+    blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
+    pixel once its transmittance falls below t_stop (colour error <= t_stop). Returns the
+    number of blends."""
     tw = x1 - x0
     npx = tw * (y1 - y0)
     for p in range(npx):
@@ -127,7 +129,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, T, acc, cnt, li
                 T[p] = Tn
                 cnt[p] += 1
                 blends += 1
-                if cnt[p] >= cap:
+                if cnt[p] >= cap or Tn < t_stop:
                     live[p] = False
                     n_live -= 1
         if want_contrib and wsum > ZERO:
@@ -147,8 +149,8 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, T, acc, cnt, li
 
 
 @njit(cache=True)
-def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, color, alpha, depth,
-                    blends_px, contrib):
+def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color, alpha,
+                    depth, blends_px, contrib):
     """Composite every tile of one frame in this thread; returns the number of blends."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
@@ -170,7 +172,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, colo
         y0 = (t // tiles_x) * tile
         x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
         _gather_tile(fo, box, inst, s, n, g, gb)
-        blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, T, acc, cnt,
+        blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
                                  live, color, alpha, depth, blends_px, contrib)
     return blends
 
@@ -190,7 +192,7 @@ def finish_env(color, alpha, depth_acc, bg, rgb, depth):
 @njit(cache=True)
 def render_frame(c0, c1, centers, r_means, rho, cell_start, means, cov, opacity, cut, normal_w,
                  rgb_dc, sh, deg, view, campos, cam, width, height, tile, near, far, cov_alpha,
-                 blend_cap, bg, sel, fo, box, radii, color, out_rgb, out_alpha, out_depth,
+                 blend_cap, t_stop, bg, sel, fo, box, radii, color, out_rgb, out_alpha, out_depth,
                  blends_px, contrib, stats):
     """Every phase of one camera in this thread: cull cells c0:c1, project, sort/bin,
     composite, finish. Scratch: sel [G], fo [G, NF], box [G, 4], radii [G], color [H, W, 3];
@@ -202,7 +204,7 @@ def render_frame(c0, c1, centers, r_means, rho, cell_start, means, cov, opacity,
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     offsets, inst, _, _ = _sort_and_bin_serial(fo, box, n, tile, tiles_x, n_tiles, False)
-    blends = composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, color,
+    blends = composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color,
                              out_alpha, out_depth, blends_px, contrib)
     finish_env(color, out_alpha, out_depth, bg, out_rgb, out_depth)
     in_view = 0
@@ -224,7 +226,7 @@ def render_frame(c0, c1, centers, r_means, rho, cell_start, means, cov, opacity,
 @njit(parallel=True, cache=True)
 def render_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, means, cov, opacity, cut,
                   normal_w, rgb_dc, sh, deg, views, campos, cams, width, height, tile, near, far,
-                  cov_alpha, blend_cap, bg, sel, fo, box, radii, color, out_rgb, out_alpha,
+                  cov_alpha, blend_cap, t_stop, bg, sel, fo, box, radii, color, out_rgb, out_alpha,
                   out_depth, blends_px, stats, n_workers):
     """Render cameras i < len(scene_of) (camera i sees packed scene scene_of[i]: cells
     cell_lo[s]:cell_lo[s+1]); n_workers draw whole frames from a shared counter. Scratch
@@ -241,6 +243,6 @@ def render_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, means, c
             s = scene_of[i]
             render_frame(cell_lo[s], cell_lo[s + 1], centers, r_means, rho, cell_start, means,
                          cov, opacity, cut, normal_w, rgb_dc, sh, deg, views[i], campos[i],
-                         cams[i], width, height, tile, near, far, cov_alpha, blend_cap, bg,
+                         cams[i], width, height, tile, near, far, cov_alpha, blend_cap, t_stop, bg,
                          sel[h], fo[h], box[h], radii[h], color[h], out_rgb[i], out_alpha[i],
                          out_depth[i], blends_px[i], no_contrib, stats[i])

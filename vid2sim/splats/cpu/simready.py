@@ -88,7 +88,7 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
                          scene.cell_start, scene.means, scene.cov, scene.opacity, scene.cut,
                          scene.normal, scene.rgb, scene.sh, deg, view, campos, k, W, H,
                          kernel_tile(settings.tile_size), float(settings.near),
-                         float(settings.far), cov_alpha, 0, bg, sel, fo, box, radii, color, rgb,
+                         float(settings.far), cov_alpha, 0, 0.0, bg, sel, fo, box, radii, color, rgb,
                          alpha, depth, blends, contrib, stats)
         np.add.at(sig, sel[:n], contrib[:n])
     out = np.zeros(scene.num, np.float64)
