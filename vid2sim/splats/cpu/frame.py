@@ -69,10 +69,10 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
 
 @njit(cache=True)
 def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
-                   color, alpha, depth, blends_px, contrib):
+                   rlive, color, alpha, depth, blends_px, contrib):
     """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
 
-    T [P], acc [P, 4], cnt [P], live [P] are scratch (P >= tile pixels); writes color
+    T [P], acc [P, 4], cnt [P], live [P], rlive [tile rows] are scratch; writes color
     [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated z) and blends_px
     [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
     blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
@@ -86,6 +86,8 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
         live[p] = True
         for c in range(4):
             acc[p, c] = ZERO
+    for r in range(y1 - y0):
+        rlive[r] = tw
     cap = blend_cap if blend_cap > 0 else 1 << 30
     want_contrib = contrib.shape[0] > 0
     n_live = npx
@@ -100,6 +102,8 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
         c0, c1, c2, c3 = g[7, k], g[8, k], g[9, k], g[10, k]
         wsum = ZERO
         for py in range(by0, by1):
+            if rlive[py - y0] == 0:
+                continue  # every pixel of this tile row has stopped
             dy = (F32(py) + HALF) - my
             row = (py - y0) * tw - x0
             for px in range(bx0, bx1):
@@ -117,6 +121,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
                 Tn = Tp * (ONE - al)
                 if Tn < T_MIN:
                     live[p] = False
+                    rlive[py - y0] -= 1
                     n_live -= 1
                     continue
                 w = al * Tp
@@ -131,6 +136,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
                 blends += 1
                 if cnt[p] >= cap or Tn < t_stop:
                     live[p] = False
+                    rlive[py - y0] -= 1
                     n_live -= 1
         if want_contrib and wsum > ZERO:
             contrib[inst[s + k]] += wsum
@@ -164,6 +170,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
     acc = np.empty((npx, 4), np.float32)
     cnt = np.empty(npx, np.int32)
     live = np.empty(npx, np.bool_)
+    rlive = np.empty(tile, np.int64)
     blends = 0
     for t in range(n_tiles):
         s = offsets[t]
@@ -173,7 +180,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
         x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
         _gather_tile(fo, box, inst, s, n, g, gb)
         blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
-                                 live, color, alpha, depth, blends_px, contrib)
+                                 live, rlive, color, alpha, depth, blends_px, contrib)
     return blends
 
 
