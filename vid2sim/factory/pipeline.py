@@ -19,6 +19,7 @@ from typing import Any, Callable, Optional, Sequence
 import numpy as np
 
 from vid2sim.factory.clips import ClipsConf, ClipSpec, plan_clips
+from vid2sim.factory.corridor import CorridorConfig
 from vid2sim.factory.decode import DecodeConf
 from vid2sim.factory.manifest import ManifestRow, load_manifest, parse_row
 from vid2sim.factory.masks import MasksConf
@@ -61,6 +62,7 @@ class PipelineConfig:
     views: SplatViewConfig = field(default_factory=SplatViewConfig)
     meshing: MeshingConfig = field(default_factory=MeshingConfig)
     walkable: WalkableConfig = field(default_factory=WalkableConfig)
+    corridor: CorridorConfig = field(default_factory=CorridorConfig)
 
     def resolved(self) -> "PipelineConfig":
         """Fill the SfM/metric configs from the preset when left unset."""
@@ -220,7 +222,31 @@ def stage_meshing(ctx: dict) -> dict:
     walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / "ground_points.npy"),
                              mesh_dir / "collision.ply", path, _dir(ctx, "walkable"),
                              input_key=load_record(mesh_dir).key)
+    check_corridor(conf.corridor, mesh_dir, walk_dir, path)
     return {"meshing_dir": str(mesh_dir), "walkable_dir": str(walk_dir)}
+
+
+def check_corridor(conf: CorridorConfig, mesh_dir: Path, walk_dir: Path, path: np.ndarray) -> dict:
+    """Corridor check (vid2sim.factory.corridor) written to walk_dir/corridor.json, then the
+    quality gate: raises StageError('meshing', reason) when the walked corridor is blocked."""
+    import json
+
+    import trimesh
+
+    from vid2sim.factory.corridor import corridor_check, gate_reasons
+    from vid2sim.factory.walkable import WalkableMap
+
+    mesh = trimesh.load(mesh_dir / "collision.ply", force="mesh", process=False)
+    report = corridor_check(WalkableMap.load(walk_dir / "walkable.npz"), mesh, path, conf)
+    reasons = gate_reasons(report, conf)
+    out = {**report.to_dict(), "passed": not reasons, "reasons": ",".join(reasons)}
+    (walk_dir / "corridor.json").write_text(json.dumps(out, indent=2))
+    if reasons:
+        raise StageError("meshing", reasons[0], f"walked corridor check failed ({', '.join(reasons)}): "
+                         f"{report.walkable_fraction:.1%} of the path walkable, "
+                         f"{report.path_components} components, "
+                         f"{report.corridor_area_m2:.3f} m^2 of collision surface in the corridor")
+    return out
 
 
 def stage_bundle(ctx: dict) -> dict:
