@@ -91,7 +91,7 @@ def run(args) -> dict:
     gt_ng = sample_surface(*scene.without_ground(), 400_000, seed=1)
     acc = chamfer_points(rec, gt_ng).a_to_b
     comp = chamfer_points(rec, gv[rng.choice(len(gv), min(len(gv), 200_000), replace=False)]).b_to_a
-    g, o, r = scene.walkable_grid(pad=wconf.robot_radius_m)
+    g, o, r = scene.walkable_grid()  # footprints only: erode_walkable adds the robot radius
     gt = erode_walkable(WalkableMap(g, o, r), wconf.robot_radius_m)
     # compare on the stretch the walk covers and sees: the GT grid spans the whole modelled
     # street, and a forward camera 1.5 m up first sees the ground about 3-4 m ahead

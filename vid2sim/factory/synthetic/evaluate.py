@@ -62,7 +62,7 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     rec = s * sample_surface(*mesh_arrays(collision), samples) @ R.T + t  # [S, 3] in GT frame
     dist = distance_to_mesh(rec, *scene.without_ground())  # [S] to the GT obstacles (no ground)
     shifted = WalkableMap(walkable.grid, walkable.origin + t[:2], walkable.resolution)  # R ~ I, s ~ 1
-    g, o, r = scene.walkable_grid(pad=robot_radius_m)
+    g, o, r = scene.walkable_grid()  # footprints only: erode_walkable adds the robot radius
     gt_map = erode_walkable(WalkableMap(g, o, r), robot_radius_m)
     path = s * src @ R.T + t
     x0, x1 = path[:, 0].min() + unseen_m, path[:, 0].max()
