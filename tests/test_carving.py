@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from vid2sim.factory.carving import CarveConfig, free_space, keep_mask
-from vid2sim.factory.meshing import DepthView, MeshingConfig, backproject, fuse_tsdf
-from vid2sim.factory.raycast import RaycastRenderer, look_at
+from vid2sim.factory.geometry.carving import CarveConfig, free_space, keep_mask
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, fuse_tsdf
+from vid2sim.factory.geometry.raycast import RaycastRenderer, look_at
 
 W, H = 80, 60
 K = np.array([[60.0, 0, W / 2], [0, 60.0, H / 2], [0, 0, 1]])

@@ -6,15 +6,15 @@ import numpy as np
 import pytest
 import trimesh
 
-from vid2sim.factory.corridor import (
+from vid2sim.factory.evaluation.corridor import (
     CorridorConfig, CorridorError, corridor_area, corridor_check, gate_reasons, walked_path)
-from vid2sim.factory.walkable import WalkableMap
+from vid2sim.formats.walkable import WalkableGrid
 
 PATH = np.array([[x, 0.0, 1.5] for x in np.linspace(0.0, 4.0, 9)])  # [9, 3] along +x
 
 
-def open_grid() -> WalkableMap:
-    return WalkableMap(np.ones((20, 60), np.uint8), np.array([-1.0, -1.0]), 0.1)  # x -1..5, y -1..1
+def open_grid() -> WalkableGrid:
+    return WalkableGrid(np.ones((20, 60), np.uint8), np.array([-1.0, -1.0]), 0.1)  # x -1..5, y -1..1
 
 
 def wall(x: float, y0: float, y1: float, z0: float, z1: float) -> trimesh.Trimesh:
@@ -76,8 +76,8 @@ def test_area_scales_with_the_body_radius():
 
 
 def test_pipeline_gate_writes_the_report_and_names_the_reason(tmp_path):
-    from vid2sim.factory.pipeline import check_corridor
-    from vid2sim.factory.stage import StageError
+    from vid2sim.factory.runtime.pipeline import check_corridor
+    from vid2sim.factory.runtime.stage_cache import StageError
 
     mesh_dir, walk_dir = tmp_path / "meshing", tmp_path / "walkable"
     mesh_dir.mkdir()
