@@ -39,6 +39,7 @@ from typing import Iterable, Optional
 import numpy as np
 import open3d as o3d
 
+from vid2sim.factory.geometry.carving import CarveConfig, free_space, keep_mask
 from vid2sim.factory.geometry.mesh_ops import remove_fragments, simplify, tidy
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
 from vid2sim.factory.geometry.visual_mesh import make_visual_mesh
@@ -85,6 +86,8 @@ class MeshingConfig:
     target_faces: int = 100_000  # physics-friendly collision mesh (quadric decimation)
     visual_target_faces: int = 300_000  # visual (coloured) mesh budget
     ground_point_cell_m: float = 0.05  # ground points kept: one per xy cell of this size
+    # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
+    carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
 
 
 @dataclass
@@ -217,19 +220,39 @@ def _new_volume(conf: MeshingConfig) -> o3d.pipelines.integration.ScalableTSDFVo
         color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
 
 
-def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
-    """Fuse views into two TSDFs in one pass (visual: all pixels, collision: no ground).
+def clamped_depth(view: DepthView, idx: int, conf: MeshingConfig) -> np.ndarray:
+    """Validated depth [H, W] float32 with invalid or out-of-range pixels set to 0."""
+    valid = check_view(view, idx)
+    depth = np.where(valid, view.depth, 0.0).astype(np.float32)
+    depth[(depth < conf.depth_min_m) | (depth > conf.depth_max_m)] = 0.0
+    return depth
 
-    `views` may be a lazy generator (e.g. rendering splats view by view): it is read once.
-    Raises MeshingError when there are no views or no valid depth at all.
+
+def carved_depths(views: list[DepthView], conf: MeshingConfig) -> list[np.ndarray]:
+    """Depth [H, W] per view with the pixels in proven-empty space removed (conf.carve)."""
+    depths = [clamped_depth(v, i, conf) for i, v in enumerate(views)]
+    if conf.carve is None or not depths or not any(d.any() for d in depths):
+        return depths
+    Ks = [np.asarray(v.K, np.float64) for v in views]
+    c2ws = [np.asarray(v.cam_to_world, np.float64) for v in views]
+    space = free_space(depths, Ks, c2ws, conf.depth_max_m, conf.carve)
+    carved = space.carved(conf.carve)
+    return [np.where(keep_mask(d, K, c, space, carved, conf.carve), d, 0.0).astype(np.float32)
+            for d, K, c in zip(depths, Ks, c2ws)]
+
+
+def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
+    """Fuse views into two TSDFs (visual: all pixels, collision: no ground), after carving.
+
+    `views` may be a lazy generator (e.g. rendering splats view by view); carving needs every
+    view twice, so they are held in memory. Raises MeshingError when there are no views or
+    no valid depth at all.
     """
+    views = list(views)
     vol_vis, vol_col = _new_volume(conf), _new_volume(conf)
     ground_pts: list[np.ndarray] = []
-    n_views = n_valid = n_ground = 0
-    for idx, view in enumerate(views):
-        valid = check_view(view, idx)
-        depth = np.where(valid, view.depth, 0.0).astype(np.float32)
-        depth[(depth < conf.depth_min_m) | (depth > conf.depth_max_m)] = 0.0
+    n_valid = n_ground = 0
+    for view, depth in zip(views, carved_depths(views, conf)):
         valid = depth > 0
         H, W = depth.shape
         rgb = view.rgb if view.rgb is not None else np.full((H, W, 3), 128, np.uint8)
@@ -240,17 +263,16 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
         vol_col.integrate(_rgbd(np.where(gmask, 0.0, depth), rgb, conf), intr, extr)
         pts = backproject(depth, view.K, view.cam_to_world)[gmask]  # [P, 3]
         ground_pts.append(thin_xy(pts, conf.ground_point_cell_m))
-        n_views += 1
         n_valid += int(valid.sum())
         n_ground += int(gmask.sum())
-    if n_views == 0:
+    if not views:
         raise MeshingError("no_views", "no depth views were given")
     if n_valid == 0:
-        raise MeshingError("no_valid_depth", f"all {n_views} depth views are empty or invalid "
+        raise MeshingError("no_valid_depth", f"all {len(views)} depth views are empty or invalid "
                            f"(range {conf.depth_min_m}..{conf.depth_max_m} m)")
     gp = thin_xy(np.concatenate(ground_pts), conf.ground_point_cell_m)
     return FusionResult(vol_vis.extract_triangle_mesh(), vol_col.extract_triangle_mesh(), gp,
-                        n_views, n_valid, n_ground)
+                        len(views), n_valid, n_ground)
 
 
 def thin_xy(pts: np.ndarray, cell_m: float) -> np.ndarray:

@@ -1,7 +1,8 @@
 """The `bundle` stage: gather a clip's stage outputs into a validated scene bundle.
 
 Reads: metric/ (PosedClip: cameras, frame facts), recon/ (splats.ply, metrics.json),
-meshing/ (collision.ply, visual_mesh.ply), walkable/ (walkable.npz), sfm/ (quality.json).
+meshing/ (collision.ply, visual_mesh.ply), walkable/ (walkable.npz, corridor.json), sfm/
+(quality.json).
 Writes: a bundle folder (scene.json, splats.ply, collision.ply, walkable.npz,
 cameras.parquet, preview.png, extras: visual_mesh.ply, colmap/) via `write_bundle`.
 """
@@ -102,7 +103,8 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
         metrics = {"recon": _read_json(dirs["recon"] / "metrics.json"),
                    "sfm": _read_json(sfm_dir / "quality.json") if sfm_dir else {},
                    "meshing": _read_json(dirs["meshing"] / "meshing.json").get("summary", {}),
-                   "walkable": _read_json(dirs["walkable"] / "walkable.json").get("summary", {})}
+                   "walkable": _read_json(dirs["walkable"] / "walkable.json").get("summary", {}),
+                   "corridor": _read_json(dirs["walkable"] / "corridor.json")}
         spec = job.spec
         start, end = spec.window if spec.window else (0.0, float(max(f.timestamp for f in clip.frames)))
         scene = make_scene_json(

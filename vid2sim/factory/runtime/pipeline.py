@@ -10,6 +10,7 @@ and reason; the others go on.
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from dataclasses import dataclass, field, replace
@@ -24,12 +25,14 @@ from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest, parse_r
 from vid2sim.factory.ingest.masks import MasksConfig
 from vid2sim.factory.geometry.meshing import MeshingConfig
 from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
+from vid2sim.factory.evaluation.corridor import CorridorConfig, corridor_check, gate_reasons
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.ingest.sources import redact_uri, resolve_source
 from vid2sim.factory.geometry.splat_views import SplatViewConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
 from vid2sim.factory.geometry.walkable import WalkableConfig
+from vid2sim.formats.walkable import load_walkable
 from vid2sim.versioning import config_hash
 
 MANIFEST_SUFFIXES = {".yaml", ".yml", ".csv", ".parquet"}
@@ -61,6 +64,7 @@ class PipelineConfig:
     views: SplatViewConfig = field(default_factory=SplatViewConfig)
     meshing: MeshingConfig = field(default_factory=MeshingConfig)
     walkable: WalkableConfig = field(default_factory=WalkableConfig)
+    corridor: CorridorConfig = field(default_factory=CorridorConfig)
 
     def resolved(self) -> "PipelineConfig":
         """Fill the SfM/metric configs from the preset when left unset."""
@@ -223,7 +227,26 @@ def stage_meshing(ctx: dict) -> dict:
     walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / "ground_points.npy"),
                              mesh_dir / "collision.ply", path, _dir(ctx, "walkable"),
                              input_key=load_record(mesh_dir).key)
+    check_corridor(conf.corridor, mesh_dir, walk_dir, path)
     return {"meshing_dir": str(mesh_dir), "walkable_dir": str(walk_dir)}
+
+
+def check_corridor(conf: CorridorConfig, mesh_dir: Path, walk_dir: Path, path: np.ndarray) -> dict:
+    """Corridor check (vid2sim.factory.evaluation.corridor) written to walk_dir/corridor.json, then the
+    quality gate: raises StageError('meshing', reason) when the walked corridor is blocked."""
+    import trimesh
+
+    mesh = trimesh.load(mesh_dir / "collision.ply", force="mesh", process=False)
+    report = corridor_check(load_walkable(walk_dir / "walkable.npz"), mesh, path, conf)
+    reasons = gate_reasons(report, conf)
+    out = {**report.to_dict(), "passed": not reasons, "reasons": ",".join(reasons)}
+    (walk_dir / "corridor.json").write_text(json.dumps(out, indent=2))
+    if reasons:
+        raise StageError("meshing", reasons[0], f"walked corridor check failed ({', '.join(reasons)}): "
+                         f"{report.walkable_fraction:.1%} of the path walkable, "
+                         f"{report.path_components} components, "
+                         f"{report.corridor_area_m2:.3f} m^2 of collision surface in the corridor")
+    return out
 
 
 def stage_bundle(ctx: dict) -> dict:
