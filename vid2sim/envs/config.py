@@ -81,7 +81,7 @@ class RewardConfig:
 class EpisodeConfig:
     geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, the paper
     min_geodesic: float = 5.0  # m, the paper's real-world range; smaller maps are refused
-    clearance: float = 0.2  # m, planner inflation for start/goal/obstacles/expert
+    clearance: float = 0.35  # m, planner inflation (robot half-width + margin) for episodes, expert
     start_yaw_noise_deg: float = 15.0
     obstacles: tuple[int, int] = (0, 5)  # inclusive range per episode
     obstacle_margin: float = 2.0  # m kept free at the start and at the goal

@@ -65,13 +65,13 @@ def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[f
     for _ in range(MAX_TRIES):
         start = planner.sample_free(rng)
         d = planner.distance_field(start)  # [H, W] m
-        rows, cols = np.nonzero((d >= lo) & (d <= hi))
+        rows, cols = np.nonzero((d >= lo) & (d <= 1.1 * hi))  # the smoothed path is shorter
         if len(rows) == 0:
             continue
         i = int(rng.integers(len(rows)))
         g = planner.to_world(rows[i], cols[i])
         path = planner.plan(start, (float(g[0]), float(g[1])))
-        if path is None:
+        if path is None or not lo <= path_length(path) <= hi:
             continue
         return Episode(scene_id, np.asarray(start), _start_yaw(path, rng, conf), g, path,
                        path_length(path))

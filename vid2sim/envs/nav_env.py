@@ -221,6 +221,10 @@ class NavEnv(gym.Env):
                              collision_steps=self.collision_steps,
                              proximity_steps=self.proximity_steps, steps=self.steps, end=end)
 
+    def expert_path(self) -> np.ndarray:
+        """A* waypoints [K, 2] the scripted expert follows (obstacles avoided)."""
+        return self.episode.path
+
     def robot_pose(self) -> tuple[float, float, float]:
         return self.state.x, self.state.y, self.state.yaw
 
