@@ -45,16 +45,20 @@ class GridPlanner:
 
     `plan(start_xy, goal_xy)` returns metric waypoints [K, 2] (start and goal included) or None
     when no path exists. Start and goal are snapped to the nearest free cell within `snap`
-    metres; farther away (or off the grid) there is no path.
+    metres; farther away (or off the grid) there is no path. With `smooth` (default) the cell
+    path is pruned by line of sight on the free cells (any-angle, closer to the true geodesic)
+    and resampled every 0.25 m.
     """
 
-    def __init__(self, grid: GridLike, clearance: float = 0.0, snap: float = 0.5) -> None:
+    def __init__(self, grid: GridLike, clearance: float = 0.0, snap: float = 0.5,
+                 smooth: bool = True) -> None:
         self.raw = np.asarray(grid.grid, np.uint8)  # [H, W]
         self.origin = np.asarray(grid.origin, np.float64).reshape(2)
         self.resolution = float(grid.resolution)
         self.clearance = float(clearance)
         self.free = inflate(self.raw > 0, self.clearance / self.resolution)  # [H, W] bool
         self.snap = float(snap)
+        self.smooth = smooth
         # nearest free cell for every cell (for snapping)
         if self.free.any():
             _, idx = ndimage.distance_transform_edt(~self.free, return_indices=True)
@@ -126,7 +130,29 @@ class GridPlanner:
         pts = self.to_world(cells[:, 0], cells[:, 1])  # [K, 2]
         pts[0] = start_xy
         pts[-1] = goal_xy
-        return pts
+        return self.shortcut(pts) if self.smooth else pts
+
+    def line_free(self, a: np.ndarray, b: np.ndarray) -> bool:
+        """True when the segment a-b stays on free cells (sampled every resolution / 4)."""
+        n = max(2, int(math.ceil(np.linalg.norm(b - a) / (0.25 * self.resolution))) + 1)
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        p = a + t * (b - a)  # [n, 2]
+        c = np.floor((p - self.origin) / self.resolution).astype(np.int64)
+        H, W = self.free.shape
+        ok = (c[:, 0] >= 0) & (c[:, 0] < W) & (c[:, 1] >= 0) & (c[:, 1] < H)
+        return bool(ok.all() and self.free[c[:, 1], c[:, 0]].all())
+
+    def shortcut(self, pts: np.ndarray) -> np.ndarray:
+        """Greedy line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
+        keep = [0]
+        i = 0
+        while i < len(pts) - 1:
+            j = len(pts) - 1
+            while j > i + 1 and not self.line_free(pts[i], pts[j]):
+                j -= 1
+            keep.append(j)
+            i = j
+        return densify(pts[keep], 0.25)
 
     def distance_field(self, start_xy: tuple[float, float]) -> np.ndarray:
         """Geodesic distance in metres from start to every cell [H, W] (+inf unreachable)."""
@@ -152,6 +178,15 @@ def path_length(points: np.ndarray) -> float:
     if len(pts) < 2:
         return 0.0
     return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+def densify(pts: np.ndarray, step: float) -> np.ndarray:
+    """Insert points so consecutive waypoints [K, 2] are at most `step` apart."""
+    out = [pts[:1]]
+    for a, b in zip(pts[:-1], pts[1:]):
+        n = max(1, int(math.ceil(np.linalg.norm(b - a) / step)))
+        out.append(a + np.linspace(0.0, 1.0, n + 1)[1:, None] * (b - a))
+    return np.concatenate(out)
 
 
 @numba.njit(cache=True)
