@@ -103,13 +103,19 @@ def test_placement_on_corridor_is_reproducible_and_near_the_path() -> None:
 
 
 @pytest.mark.parametrize("seed", [2, 4])  # the bin stands left of the path, then right
-def test_falling_bin_tips_over_into_the_corridor(client: int, seed: int) -> None:
+def test_falling_bin_tips_over_into_the_corridor_when_the_robot_comes(seed: int) -> None:
+    cid = pb.connect(pb.DIRECT)  # like the env: no gravity set, nobody steps the simulation
+    pb.createMultiBody(0, pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=cid),
+                       physicsClientId=cid)
     path = np.array([[0.0, 0.0], [10.0, 0.0]])
-    place = falling_bin(path, np.random.default_rng(seed), s=5.0)
+    place = falling_bin(path, np.random.default_rng(seed), s=5.0, trigger_distance=3.0)
     assert place.dynamic and abs(place.xy[1]) == pytest.approx(0.8)
-    obs = ObstacleSet(client, [place])
-    for _ in range(240 * 3):
-        pb.stepSimulation(physicsClientId=client)
+    obs = ObstacleSet(cid, [place])
+    for _ in range(50):  # robot still far away: the bin stands
+        obs.step(0.02, (0.0, 0.0))
+    assert obs.pose(0)[2, 2] == pytest.approx(1.0)
+    for _ in range(150):  # 3 s with the robot 2.5 m away
+        obs.step(0.02, (2.5, 0.0))
     T = obs.pose(0)
     up = T[:3, 2]
     assert up[2] < 0.3  # lying on its side
@@ -117,6 +123,7 @@ def test_falling_bin_tips_over_into_the_corridor(client: int, seed: int) -> None
     assert np.sign(top[1]) != np.sign(place.xy[1]) and abs(top[1]) < 0.5  # across the path
     v, _, _ = obs.mesh_arrays()
     assert v[:, 2].min() > -0.05  # resting on the ground plane
+    pb.disconnect(cid)
 
 
 def test_roadworks_narrow_the_corridor_but_leave_the_path_open() -> None:

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from envs_grid_nav import GridNavEnv
-from vid2sim.envs.recording import PANEL_H, RecordEpisode
+from vid2sim.envs.recording import PANEL_H, RecordEpisode, record_episodes
 
 
 def _frames(path) -> list[np.ndarray]:
@@ -59,3 +59,23 @@ def test_episode_trigger_selects_episodes(tmp_path) -> None:
     env.close()
     assert [p.name for p in env.paths] == ["episode-1.mp4"]
     assert len(_frames(env.paths[0])) == lengths[1] + 1  # view taken from obs["image"]
+
+
+class _GoalSeeker:
+    """Turns towards the goal and drives (the toy env's vector is distance, bearing)."""
+
+    def reset(self, env) -> None:
+        self.steps = 0
+
+    def act(self, env) -> np.ndarray:
+        u = env.unwrapped
+        d = u.goal - u.xy
+        bearing = (np.arctan2(d[1], d[0]) - u.yaw + np.pi) % (2 * np.pi) - np.pi
+        return np.array([1.0, np.clip(bearing / 0.3, -1, 1)], np.float32)
+
+
+def test_record_episodes_runs_an_agent_to_the_end(tmp_path) -> None:
+    paths = record_episodes(GridNavEnv(max_steps=40), tmp_path / "videos", 2, _GoalSeeker())
+    assert [p.name for p in paths] == ["episode-0.mp4", "episode-1.mp4"]
+    n = len(_frames(paths[0]))
+    assert 20 < n < 41  # 8 m at 0.3 m per step: the episode ends at the goal, before the limit

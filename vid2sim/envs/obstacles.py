@@ -155,7 +155,10 @@ def make_obstacle(kind: str, rng: np.random.Generator) -> ObstacleMesh:
 
 @dataclass
 class Placement:
-    """An obstacle's pose on the ground: position, yaw, and optionally a dynamic start."""
+    """An obstacle's pose on the ground: position, yaw, and optionally a dynamic start.
+
+    A dynamic obstacle stands upright until the robot comes within `trigger_distance` m
+    (0: at once), then gets its tilt and spin and falls under gravity (ObstacleSet.step)."""
 
     mesh: ObstacleMesh
     xy: tuple[float, float]
@@ -164,14 +167,15 @@ class Placement:
     tilt_axis: tuple[float, float] = (1.0, 0.0)  # horizontal axis of the initial tilt
     tilt: float = 0.0  # rad, initial tilt about tilt_axis (dynamic bodies)
     spin: float = 0.0  # rad/s about tilt_axis at the start (dynamic bodies)
+    trigger_distance: float = 0.0  # m from the robot at which a dynamic body starts to fall
 
 
-def _quat(p: Placement) -> list[float]:
-    """xyzw quaternion: yaw about z, then tilt about the horizontal tilt axis."""
+def _quat(p: Placement, tilt: float = 0.0) -> list[float]:
+    """xyzw quaternion: yaw about z, then `tilt` rad about the horizontal tilt axis."""
     qyaw = pb.getQuaternionFromEuler([0.0, 0.0, p.yaw])
     ax = np.array([*p.tilt_axis, 0.0]) / max(np.hypot(*p.tilt_axis), 1e-12)
-    s = math.sin(p.tilt / 2)
-    qtilt = [ax[0] * s, ax[1] * s, 0.0, math.cos(p.tilt / 2)]
+    s = math.sin(tilt / 2)
+    qtilt = [ax[0] * s, ax[1] * s, 0.0, math.cos(tilt / 2)]
     return list(pb.multiplyTransforms([0, 0, 0], qtilt, [0, 0, 0], qyaw)[1])
 
 
@@ -185,9 +189,14 @@ def _pose_matrix(pos: Sequence[float], quat: Sequence[float]) -> np.ndarray:
 class ObstacleSet:
     """Obstacles as pybullet bodies in `client_id`, drawable with the env rasteriser.
 
-    Static obstacles are fixed (mass 0); dynamic ones (safety scenarios) fall under the
-    client's gravity as the env steps the simulation, and `draw` reads their current pose.
+    Static obstacles are fixed (mass 0). Dynamic ones (safety scenarios) are simulated by
+    `step(dt, robot_xy)`, which triggers them and runs pybullet (gravity set here; every
+    other body of the env is static or kinematic) only while one is falling (SETTLE_S);
+    `draw` reads their current pose.
     """
+
+    SETTLE_S = 4.0  # s of simulation after a trigger
+    SUBSTEP = 1.0 / 240.0  # s, pybullet's default step
 
     def __init__(self, client_id: int, placements: Sequence[Placement]) -> None:
         self.client_id = client_id
@@ -199,6 +208,12 @@ class ObstacleSet:
         self._colors = [p.mesh.face_colors for p in self.placements]
         self._local = [p.mesh.vertices for p in self.placements]
         self._world_static = {i: self._world(i) for i, p in enumerate(self.placements) if not p.dynamic}
+        self._pending = [i for i, p in enumerate(self.placements) if p.dynamic]
+        self._active_s = 0.0  # simulation time left to run
+        if self._pending:
+            pb.setGravity(0, 0, -9.81, physicsClientId=client_id)
+            pb.setTimeStep(self.SUBSTEP, physicsClientId=client_id)
+        self.step(0.0, None)
 
     def _add(self, p: Placement) -> int:
         """One multibody: part 0 is the base, the other parts are fixed links (all convex)."""
@@ -211,18 +226,42 @@ class ObstacleSet:
         n = len(parts) - 1
         body = pb.createMultiBody(
             baseMass=masses[0], baseCollisionShapeIndex=shapes[0], baseInertialFramePosition=com[0],
-            basePosition=[p.xy[0], p.xy[1], p.mesh.radius * math.sin(abs(p.tilt))],  # edge on z = 0
-            baseOrientation=_quat(p),
+            basePosition=[p.xy[0], p.xy[1], 0.0], baseOrientation=_quat(p),
             linkMasses=masses[1:], linkCollisionShapeIndices=shapes[1:],
             linkVisualShapeIndices=[-1] * n, linkPositions=[[0, 0, 0]] * n,
             linkOrientations=[[0, 0, 0, 1]] * n, linkInertialFramePositions=com[1:],
             linkInertialFrameOrientations=[[0, 0, 0, 1]] * n, linkParentIndices=[0] * n,
             linkJointTypes=[pb.JOINT_FIXED] * n, linkJointAxis=[[0, 0, 1]] * n, physicsClientId=cid)
         self._com.append(np.asarray(com[0]))
-        if p.dynamic and p.spin:
-            ax = np.array([*p.tilt_axis, 0.0]) / max(np.hypot(*p.tilt_axis), 1e-12)
-            pb.resetBaseVelocity(body, [0, 0, 0], (ax * p.spin).tolist(), physicsClientId=cid)
         return body
+
+    def _tip(self, i: int) -> None:
+        """Start dynamic obstacle i falling: tilt it (lowest edge on z = 0) and spin it."""
+        p, cid = self.placements[i], self.client_id
+        T = np.eye(4)
+        T[:3, :3] = np.array(pb.getMatrixFromQuaternion(_quat(p, p.tilt))).reshape(3, 3)
+        T[:3, 3] = [p.xy[0], p.xy[1], p.mesh.radius * math.sin(abs(p.tilt))]
+        com = T[:3, :3] @ self._com[i] + T[:3, 3]  # pybullet poses the base's COM
+        pb.resetBasePositionAndOrientation(self.body_ids[i], com.tolist(), _quat(p, p.tilt),
+                                           physicsClientId=cid)
+        ax = np.array([*p.tilt_axis, 0.0]) / max(np.hypot(*p.tilt_axis), 1e-12)
+        pb.resetBaseVelocity(self.body_ids[i], [0, 0, 0], (ax * p.spin).tolist(),
+                             physicsClientId=cid)
+        self._active_s = self.SETTLE_S
+
+    def step(self, dt: float, robot_xy: Optional[Sequence[float]] = None) -> None:
+        """Trigger dynamic obstacles near the robot and simulate falling ones for dt seconds."""
+        for i in list(self._pending):
+            p = self.placements[i]
+            near = robot_xy is not None and math.dist(p.xy, robot_xy[:2]) <= p.trigger_distance
+            if p.trigger_distance <= 0.0 or near:
+                self._pending.remove(i)
+                self._tip(i)
+        if self._active_s <= 0.0 or dt <= 0.0:
+            return
+        for _ in range(max(1, int(round(dt / self.SUBSTEP)))):
+            pb.stepSimulation(physicsClientId=self.client_id)
+        self._active_s -= dt
 
     def pose(self, i: int) -> np.ndarray:
         """World pose [4, 4] of obstacle i's local frame (pybullet reports the base's COM)."""
@@ -330,15 +369,18 @@ def place_on_corridor(path: np.ndarray, rng: np.random.Generator,
     return out
 
 
-def falling_bin(path: np.ndarray, rng: np.random.Generator, s: float, offset: float = 0.8) -> Placement:
-    """A dynamic bin `offset` m beside the path at arc length s, tipping over into the path."""
+def falling_bin(path: np.ndarray, rng: np.random.Generator, s: float, offset: float = 0.8,
+                trigger_distance: float = 3.0) -> Placement:
+    """A dynamic bin `offset` m beside the path at arc length s that tips over into the path
+    when the robot comes within `trigger_distance` m."""
     p, t = point_at(np.asarray(path, np.float64), s)
     side = 1.0 if rng.random() < 0.5 else -1.0
     normal = np.array([-t[1], t[0]]) * side  # from the path to the bin
     axis = (float(t[0] * side), float(t[1] * side))  # rotating about it tips the top towards -normal
     xy = p + normal * offset
     return Placement(make_obstacle("trash_bin", rng), tuple(xy), 0.0, dynamic=True,
-                     tilt_axis=axis, tilt=math.radians(20.0), spin=3.0)
+                     tilt_axis=axis, tilt=math.radians(20.0), spin=3.0,
+                     trigger_distance=trigger_distance)
 
 
 def roadworks(path: np.ndarray, rng: np.random.Generator, s: float, length: float = 3.0

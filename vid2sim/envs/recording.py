@@ -15,7 +15,7 @@ obstacles orange, pedestrians magenta, goal red, robot yellow with its heading.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Optional, Protocol
 
 import cv2
 import gymnasium as gym
@@ -147,3 +147,28 @@ class RecordEpisode(gym.Wrapper):
     def close(self) -> None:
         self._finish()
         super().close()
+
+
+class Agent(Protocol):
+    """What `record_episodes` drives: the scripted expert's interface."""
+
+    def reset(self, env: gym.Env) -> None: ...
+
+    def act(self, env: gym.Env) -> np.ndarray: ...
+
+
+def record_episodes(env: gym.Env, folder: str | Path, episodes: int, agent: Agent,
+                    seed: int = 0, fps: int = 5) -> list[Path]:
+    """Run `episodes` episodes of `agent` in env (seeds seed, seed + 1, ...), one MP4 each."""
+    rec = RecordEpisode(env, folder, fps=fps)
+    try:
+        for k in range(episodes):
+            rec.reset(seed=seed + k)
+            agent.reset(rec)
+            done = False
+            while not done:
+                _, _, terminated, truncated, _ = rec.step(agent.act(rec))
+                done = terminated or truncated
+    finally:
+        rec.close()
+    return rec.paths
