@@ -34,7 +34,6 @@ class EpisodeActors:
         self.obstacles: Optional[ObstacleSet] = None
         self.crowd: Optional[Crowd] = None
         self.expert_path: Optional[np.ndarray] = None  # [K, 2]
-        self.has_dynamic = False
 
     def spawn(self, grid: WalkableGrid, planner: GridPlanner, path: np.ndarray, rng: np.random.Generator,
               obstacles: ObstacleConfig, pedestrians: int) -> None:
@@ -48,7 +47,6 @@ class EpisodeActors:
             placements = placements[:-1]
         self.expert_path = route if route is not None else path
         self.obstacles = ObstacleSet(self.client_id, placements)
-        self.has_dynamic = any(p.dynamic for p in placements)
         self.crowd = (Crowd(planner, pedestrians, rng, self.client_id, avoid=[start, goal])
                       if pedestrians > 0 else None)
 
@@ -63,9 +61,15 @@ class EpisodeActors:
         blocked = WalkableGrid((grid.grid > 0) & ~occ, grid.origin, grid.resolution)
         return GridPlanner(blocked, clearance=clearance).plan(start, goal)
 
-    def step(self, dt: float) -> None:
+    def step(self, dt: float, robot_xy: tuple[float, float]) -> tuple[float, float]:
+        """Advance falling obstacles and walkers by dt; returns their seconds (obstacles, people)."""
+        t0 = time.perf_counter()
+        if self.obstacles is not None:
+            self.obstacles.step(dt, robot_xy)
+        t1 = time.perf_counter()
         if self.crowd is not None:
             self.crowd.step(dt)
+        return t1 - t0, time.perf_counter() - t1
 
     def draw_over(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, float, float]:

@@ -136,9 +136,9 @@ class NavEnv(gym.Env):
         speed_n, steer_n = self._check_action(action)
         c = self.config
         prev_dist = self.distance()
-        t0 = time.perf_counter()
-        self.actors.step(1.0 / c.control_hz)
-        self.timings["pedestrians"] += time.perf_counter() - t0
+        t_obs, t_ped = self.actors.step(1.0 / c.control_hz, (self.state.x, self.state.y))
+        self.timings["obstacles"] += t_obs
+        self.timings["pedestrians"] += t_ped
         t0 = time.perf_counter()
         collided = self._drive(speed_n * c.robot.max_speed, steer_n * c.robot.max_steer)
         t1 = time.perf_counter()
@@ -201,8 +201,6 @@ class NavEnv(gym.Env):
         collided = False
         for _ in range(c.substeps):
             x0, y0 = self.state.x, self.state.y
-            if self.actors.has_dynamic:
-                self.world.physics.step_dynamics(dt)
             self.state, hit = self.world.physics.step(self.state, speed, steer, dt)
             collided |= bool(hit)
             self.travelled += math.hypot(self.state.x - x0, self.state.y - y0)

@@ -36,7 +36,7 @@ class PhysicsWorld:
         self.client = pb.connect(pb.DIRECT)
         self.robot_conf = robot
         c = self.client
-        pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)  # only dynamic obstacles feel it
+        pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)  # only falling obstacles feel it
         plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
         self.ground_id = pb.createMultiBody(0, plane, physicsClientId=c)
         self.scene_id = -1
@@ -86,11 +86,6 @@ class PhysicsWorld:
             self.place(state.x, state.y, state.yaw)
             return RobotState(state.x, state.y, state.yaw, 0.0, steer), hit
         return RobotState(nx, ny, yaw, speed, steer), hit
-
-    def step_dynamics(self, dt: float) -> None:
-        """Advance pybullet's dynamics (falling obstacles) by dt."""
-        pb.setTimeStep(dt, physicsClientId=self.client)
-        pb.stepSimulation(physicsClientId=self.client)
 
     def close(self) -> None:
         if self.client >= 0 and pb.isConnected(self.client):
