@@ -72,7 +72,7 @@ def test_matches_dummy_vec_env_on_boundary_steps(ray_runtime):
                 saw_termination |= not a["TimeLimit.truncated"]
     assert saw_truncation, "no time-limit boundary was crossed"
     assert ray_env.get_attr("spec")[2].max_episode_steps == 60
-    assert ray_env.env_method("render", indices=[1, 3])[0].shape == (18, 32, 3)
+    assert ray_env.env_method("render", indices=[1, 3])[0].shape == (36, 64, 3)
     ray_env.close()
 
 
@@ -89,7 +89,7 @@ def test_killed_actor_is_restarted_and_stepping_goes_on(ray_runtime):
     assert dones.tolist() == [True, True, False, False]
     for i in (0, 1):
         assert infos[i]["actor_restarted"] and infos[i]["TimeLimit.truncated"]
-        assert infos[i]["terminal_observation"]["image"].shape == (6, 3, 18, 32)
+        assert infos[i]["terminal_observation"]["image"].shape == (6, 3, 36, 64)
         assert obs["vector"][i, :-1].sum() == 0  # fresh episode: only the first stacked step is filled
     assert env.restarts == 1
     new_pids = env.actor_pids()

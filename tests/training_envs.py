@@ -18,7 +18,7 @@ STACK = 6
 class GoalSeekEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
 
-    def __init__(self, height: int = 18, width: int = 32, arena: float = 4.0, dt: float = 0.2,
+    def __init__(self, height: int = 36, width: int = 64, arena: float = 4.0, dt: float = 0.2,
                  render_mode: str | None = None):
         self.h, self.w, self.arena, self.dt = height, width, arena, dt
         self.render_mode = render_mode
