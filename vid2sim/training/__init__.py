@@ -1,1 +1,1 @@
-"""Rollouts on Ray actors, SAC training, held-out evaluation, scene-count studies, policy export."""
+"""Training: rollouts, SAC, evaluation, study and policy export (built on `vid2sim.envs`)."""

@@ -1,0 +1,1 @@
+"""Runtime: pipeline stage chain, Ray orchestrator, stage cache, progress, bundle assembly, demo."""
