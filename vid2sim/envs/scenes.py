@@ -18,7 +18,9 @@ from plyfile import PlyData
 
 from vid2sim.envs.planning import Grid
 from vid2sim.registry import Registry
-from vid2sim.registry.bundle import COLLISION_PLY, SPLATS_PLY, WALKABLE_NPZ, load_walkable
+from vid2sim.formats.bundle import COLLISION_PLY
+from vid2sim.formats.splat_ply import SPLATS_PLY
+from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
 from vid2sim.splats import GaussianModel, read_ply
 
 VISUAL_MESH_PLY = "visual_mesh.ply"
@@ -87,7 +89,8 @@ def load_scene(registry: Registry, scene_id: str, dest_root: Optional[Path] = No
     rec = registry.show(scene_id)
     dest = Path(dest_root or checkout_dir()) / rec.ref
     folder = registry.checkout(scene_id, dest=dest)
-    grid, origin, res = load_walkable(folder / WALKABLE_NPZ)
+    wg = load_walkable(folder / WALKABLE_NPZ)
+    grid, origin, res = wg.grid, wg.origin, wg.resolution
     visual = folder / VISUAL_MESH_PLY
     return SceneAssets(scene_id=scene_id, bundle_dir=folder, splats=read_ply(folder / SPLATS_PLY),
                        collision=read_collision(folder / COLLISION_PLY),
