@@ -44,7 +44,7 @@ def test_step_api_keeps_history_and_clamps(trained, tmp_path):
     assert -1 <= speed <= 1 and -1 <= steering <= 1
     policy.step(np.full((36, 64, 3), 200, np.uint8), 4.0, 0.2)
     assert policy.frames.shape == (6, 3, 36, 64) and policy.frames[-1].max() == 200 and policy.frames[0].max() == 0
-    assert np.allclose(policy.vectors[-1], [4.0, 0.2])
+    assert np.allclose(policy.vectors[-1], [4.0, 0.2 / np.pi])
     # extreme inputs still give actions inside the clamp
     big = policy.act_stacked(np.full((1, 6, 3, 36, 64), 255, np.uint8), np.full((1, 6, 2), 1e6, np.float32))
     assert np.all(np.abs(big) <= 1.0)

@@ -39,7 +39,7 @@ def test_partition_and_scene_specs():
     assert partition(5, 2) == [[0, 1, 2], [3, 4]]
     assert partition(2, 4) == [[0], [1]]
     specs = specs_for_scenes("vid2sim/PointNav-v0", ["a", "b"], 3, {"registry": "/r"}, seed=4)
-    assert [s.kwargs["scene_id"] for s in specs] == ["a", "b", "a"]
+    assert [s.kwargs["scenes"] for s in specs] == ["a", "b", "a"]
     assert [s.seed for s in specs] == [4, 5, 6]
 
 

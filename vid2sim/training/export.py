@@ -50,7 +50,7 @@ class DeterministicActor(nn.Module):
 @dataclass
 class PolicyMeta:
     image_shape: list[int]  # [6, C, H, W] uint8
-    vector_shape: list[int]  # [6, 2]: distance (m), heading (rad) to the goal per stacked step
+    vector_shape: list[int]  # [6, 2]: distance (m), heading / pi to the goal per stacked step (as the envs)
     actions: list[str]
     code_version: str
     source: str
@@ -113,10 +113,10 @@ class NavPolicy:
         self.frames = self.vectors = None
 
     def step(self, frame: np.ndarray, distance: float, heading: float) -> tuple[float, float]:
-        """One control step; `frame` is [H, W, C] or [C, H, W] uint8, heading in radians."""
+        """One control step; `frame` is [H, W, C] or [C, H, W] uint8; heading to the goal in radians."""
         stack, channels = self.meta.image_shape[0], self.meta.image_shape[1]
         chw = frame if frame.shape[0] == channels else np.transpose(frame, (2, 0, 1))
-        vec = np.array([distance, heading], np.float32)
+        vec = np.array([distance, heading / np.pi], np.float32)  # the envs' vector convention
         if self.frames is None:
             self.frames = np.repeat(chw[None], stack, axis=0).astype(np.uint8)
             self.vectors = np.repeat(vec[None], stack, axis=0)

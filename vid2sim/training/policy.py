@@ -1,7 +1,7 @@
 """CNN feature extractor for the stacked camera frames plus the goal vector.
 
 Input (Vid2Sim observation): `image` uint8 [B, 6, C, H, W] (6 stacked frames, C = 3 RGB or 1
-depth) and `vector` float [B, 6, 2] (distance and heading to the goal per stacked step). The
+depth) and `vector` float [B, 6, 2] (distance in m and heading / pi to the goal per stacked step). The
 frames are folded into channels (6*C), scaled to [0, 1] and passed through a Nature-CNN style
 stack; the vector goes through a small MLP; both are concatenated.
 
@@ -18,7 +18,7 @@ import torch
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from torch import nn
 
-VECTOR_SCALE = (1.0 / 30.0, 1.0 / 3.141592653589793)  # metres, radians -> about [-1, 1]
+VECTOR_SCALE = (1.0 / 30.0, 1.0)  # distance (m) -> about [0, 1]; heading is already heading / pi in the envs
 
 
 def conv_stack(in_channels: int) -> nn.Sequential:

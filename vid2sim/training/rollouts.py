@@ -49,7 +49,7 @@ class EnvSpec:
 
 def specs_for_scenes(env_id: str, scene_ids: Sequence[str], n_envs: int, base_kwargs: dict[str, Any],
                      seed: int = 0, module: Optional[str] = "vid2sim.envs",
-                     scene_key: str = "scene_id") -> list[EnvSpec]:
+                     scene_key: str = "scenes") -> list[EnvSpec]:
     """`n_envs` specs with the scenes of a registry split dealt round-robin (env i gets scene i % S)."""
     if not scene_ids:
         raise ValueError("no scenes given")

@@ -27,13 +27,23 @@ from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
+from vid2sim.envs.metrics import EpisodeRecord, sns, spl
 from vid2sim.registry import Registry
 from vid2sim.training.config import TrainConfig
 from vid2sim.training.policy import NavCNN
 from vid2sim.training.rollouts import EnvSpec, RayVecEnv, RayVecEnvConfig, specs_for_scenes
 from vid2sim.versioning import code_version
 
-NAV_METRIC_KEYS = ("is_success", "success", "spl", "cost", "collisions", "sns", "path_length")
+NAV_METRIC_KEYS = ("is_success", "success", "spl", "cost", "sns")
+
+
+def nav_metrics(info: dict) -> dict[str, float]:
+    """Metrics of a finished episode: from the envs' `EpisodeRecord` (info["episode"]) or flat keys."""
+    record = info.get("episode")
+    if isinstance(record, EpisodeRecord):
+        return {"success": float(record.success), "spl": spl(record), "cost": float(record.collision_events),
+                "sns": sns(record)}
+    return {k: float(info[k]) for k in NAV_METRIC_KEYS if k in info}
 
 
 # ------------------------------------------------------------------ scenes and run folder
@@ -140,7 +150,7 @@ class NavLogger(BaseCallback):
         self.lengths += 1
         for i in np.flatnonzero(dones):
             ep = {"return": float(self.returns[i]), "length": float(self.lengths[i])}
-            ep.update({k: float(infos[i][k]) for k in NAV_METRIC_KEYS if k in infos[i]})
+            ep.update(nav_metrics(infos[i]))
             self.episodes.append(ep)
             self.returns[i], self.lengths[i] = 0.0, 0
         if self.num_timesteps - self.last_log >= self.log_every:
