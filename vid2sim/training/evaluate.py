@@ -23,6 +23,7 @@ import numpy as np
 from stable_baselines3 import SAC
 
 import vid2sim.envs  # noqa: F401  (registers the env ids)
+import vid2sim.training.privileged  # noqa: F401  (registers the privileged-observation env id)
 from vid2sim.envs.config import EnvConfig, EpisodeConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
@@ -45,6 +46,7 @@ class EvalConfig:
     max_steps: Optional[int] = None  # None: the env's 3000
     seed: int = 1000
     checkout_root: Optional[str] = None
+    env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
 
 
 @dataclass
@@ -98,7 +100,7 @@ def eval_env_config(config: EvalConfig) -> tuple[str, EnvConfig]:
     env_conf = EnvConfig(variant=config.variant, training=False, episode=episode)
     if config.max_steps:
         env_conf = replace(env_conf, reward=replace(env_conf.reward, max_steps=config.max_steps))
-    return f"vid2sim/{task}-v0", env_conf
+    return config.env_id or f"vid2sim/{task}-v0", env_conf
 
 
 def run_episode(env: gym.Env, act: Policy, on_reset: Callable, seed: int, scene_id: str) -> EpisodeRecord:
