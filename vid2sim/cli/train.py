@@ -12,6 +12,7 @@ from rich.console import Console
 from rich.table import Table
 
 from vid2sim.training.config import SACConfig, TrainConfig
+from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.sac import train
 from vid2sim.training.study import StudyConfig, run_study
 
@@ -28,6 +29,14 @@ def _ray(address: Optional[str], num_cpus: Optional[int]) -> None:
         ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
     else:
         ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+
+
+def _study_env(env: str) -> dict[str, str]:
+    if env == "pixel":
+        return {"env_id": "vid2sim/PointNav-v0", "env_module": "vid2sim.envs"}
+    if env == "privileged":
+        return {"env_id": PRIVILEGED_ID, "env_module": "vid2sim.training.privileged"}
+    raise typer.BadParameter(f"--env must be pixel or privileged, got {env!r}")
 
 
 def train_command(
@@ -77,12 +86,14 @@ def study_command(
     buffer_size: Optional[int] = typer.Option(None, "--buffer-size"),
     ray_address: Optional[str] = typer.Option(None, "--ray-address"),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus"),
+    env: str = typer.Option("pixel", "--env", help="pixel (PointNav RGB) | privileged (goal vector + ranges)"),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
     config = StudyConfig(registry=registry, out_dir=out_dir, counts=[int(c) for c in counts.split(",")],
                          seeds=seeds, split_seed=split_seed, total_steps=steps, n_envs=n_envs, trials=trials,
-                         obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size))
+                         obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size),
+                         **_study_env(env))
     _ray(ray_address, num_cpus)
     rows = run_study(config)
     if as_json:

@@ -29,6 +29,20 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 
+class NavInfoForSB3(gym.Wrapper):
+    """Moves a non-Monitor `info["episode"]` (the envs' `EpisodeRecord`) to `info["nav_episode"]`.
+
+    SB3 reserves `info["episode"]` for its Monitor's {"r", "l", "t"} dict and logs from it, so the
+    envs' metrics record must not sit under that key inside SB3's loop."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if "episode" in info and not isinstance(info["episode"], dict):
+            info = dict(info)
+            info["nav_episode"] = info.pop("episode")
+        return obs, reward, terminated, truncated, info
+
+
 @dataclass
 class EnvSpec:
     """How to build one environment in any process: `import module; gym.make(env_id, **kwargs)`."""
@@ -39,9 +53,10 @@ class EnvSpec:
     module: Optional[str] = None  # imported first, so the env id is registered (e.g. "vid2sim.envs")
 
     def make(self) -> gym.Env:
+        """The env, wrapped by `NavInfoForSB3` (these specs feed SB3 vector envs)."""
         if self.module:
             importlib.import_module(self.module)
-        return gym.make(self.env_id, **self.kwargs)
+        return NavInfoForSB3(gym.make(self.env_id, **self.kwargs))
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -38,8 +38,8 @@ NAV_METRIC_KEYS = ("is_success", "success", "spl", "cost", "sns")
 
 
 def nav_metrics(info: dict) -> dict[str, float]:
-    """Metrics of a finished episode: from the envs' `EpisodeRecord` (info["episode"]) or flat keys."""
-    record = info.get("episode")
+    """Metrics of a finished episode: the envs' `EpisodeRecord` (moved to info["nav_episode"]) or flat keys."""
+    record = info.get("nav_episode")
     if isinstance(record, EpisodeRecord):
         return {"success": float(record.success), "spl": spl(record), "cost": float(record.collision_events),
                 "sns": sns(record)}
@@ -74,6 +74,7 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     base = dict(config.env_kwargs)
     if config.registry:
         base.setdefault("registry", config.registry)
+        base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))  # bundles checked out per run
     if config.scene_ids:
         return specs_for_scenes(config.env_id, config.scene_ids, config.n_envs, base, config.seed,
                                 config.env_module)

@@ -42,6 +42,8 @@ class StudyConfig:
     env_kwargs: dict = field(default_factory=dict)
     sac: SACConfig = field(default_factory=SACConfig)
     num_cpus_per_run: float = 1.0
+    env_id: str = "vid2sim/PointNav-v0"  # or PRIVILEGED_ID (goal vector + ranges, no pixels)
+    env_module: str = "vid2sim.envs"
 
 
 @dataclass
@@ -74,12 +76,13 @@ def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) ->
     """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes."""
     run_dir = Path(config.out_dir) / f"n{count}_s{seed}"
     tc = TrainConfig(run_dir=str(run_dir), total_steps=config.total_steps, registry=config.registry,
+                     env_id=config.env_id, env_module=config.env_module,
                      split_seed=config.split_seed, train_scenes=count, scene_ids=list(scene_ids),
                      n_envs=config.n_envs, n_actors=0, seed=seed, env_kwargs=dict(config.env_kwargs),
                      checkpoint_every=max(config.total_steps, 1), sac=config.sac)
     result = train(tc, progress_bar=False)
     report = evaluate(EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
-                                 trials=config.trials, obstacles=config.obstacles,
+                                 trials=config.trials, obstacles=config.obstacles, env_id=config.env_id,
                                  checkout_root=str(Path(config.out_dir) / "checkouts")))
     (run_dir / "eval.json").write_text(report.to_json())
     m = report.metrics
