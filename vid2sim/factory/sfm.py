@@ -31,7 +31,7 @@ import numpy as np
 
 from vid2sim.factory.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
 from vid2sim.factory.export import write_colmap, write_transforms
-from vid2sim.factory.stage import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.stage import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
@@ -96,7 +96,7 @@ class SfMQuality:
     camera_model: str = ""
     camera_params: list[float] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
-    images_dir: str = ""  # the input frames (the metric stage finds timestamps beside them)
+    images_dir: str = ""  # the input frames, relative to the SfM folder (metric finds timestamps beside them)
     failed: str = ""
 
 
@@ -111,9 +111,15 @@ def list_images(images_dir: Path) -> list[str]:
 
 
 def inputs_key(images_dir: Path, names: list[str], masks_dir: Optional[Path]) -> str:
-    """Cheap content key: names, sizes and mtimes of frames and masks."""
+    """Cheap content key: the producing stage's cache key when the folder sits in a finished
+    stage folder (stable when the folder is copied to another node), else the names, sizes and
+    mtimes of frames and masks."""
     h = hashlib.sha256()
     for folder in [Path(images_dir)] + ([Path(masks_dir)] if masks_dir else []):
+        rec = load_record(folder.parent)
+        if rec is not None:
+            h.update(f"{folder.name}:{rec.key};".encode())
+            continue
         for p in sorted(folder.iterdir()) if folder.is_dir() else []:
             st = p.stat()
             h.update(f"{p.name}:{st.st_size}:{int(st.st_mtime)};".encode())
@@ -380,7 +386,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     if is_done(out_dir, key):
         return out_dir
     fresh_dir(out_dir)
-    q = SfMQuality(num_frames=len(names), images_dir=str(images_dir.resolve()))
+    q = SfMQuality(num_frames=len(names), images_dir=os.path.relpath(images_dir.resolve(), out_dir.resolve()))
     if len(names) < conf.min_frames:
         raise fail(out_dir, q, "too_few_frames",
                    f"{images_dir} has {len(names)} frames, need >= {conf.min_frames}")
