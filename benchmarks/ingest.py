@@ -22,8 +22,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from vid2sim.factory import decode, masks  # noqa: E402
-from vid2sim.factory.privacy import FaceBlurrer  # noqa: E402
+from vid2sim.factory.ingest import decode, masks  # noqa: E402
+from vid2sim.factory.ingest.privacy import FaceBlurrer  # noqa: E402
 
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
@@ -59,7 +59,7 @@ def main() -> None:
     timed("  face detection, 10 frames, 1 proc", lambda: [blur(s.image) for s in samples[:10]])
     d = timed("decode stage (total)", lambda: decode.main(conf, video, out / "decode"))
     m = timed("masks stage (total)", lambda: masks.main(masks.MasksConf(), d, out / "masks"))
-    from vid2sim.factory.stage import load_record
+    from vid2sim.factory.runtime.stage_cache import load_record
 
     print("decode summary:", load_record(d).summary)
     print("masks summary:", load_record(m).summary)

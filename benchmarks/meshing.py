@@ -25,15 +25,16 @@ import time
 import numpy as np
 import trimesh
 
-from vid2sim.factory.geometry_metrics import (
+from vid2sim.factory.evaluation.geometry_metrics import (
     chamfer_points, erode_walkable, grid_iou, sample_surface)
-from vid2sim.factory.meshing import DepthView, MeshingConfig, backproject, build_meshes
-from vid2sim.factory.raycast import RaycastRenderer, mesh_arrays
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
+from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street
 from vid2sim.factory.synthetic.trajectory import walking_poses
-from vid2sim.factory.walkable import WalkableConfig, WalkableMap, walkable_map
+from vid2sim.factory.geometry.walkable import WalkableConfig, walkable_map
+from vid2sim.formats.walkable import WalkableGrid
 
 
 def noisy(depth, normal, rel, deg, rng):
@@ -81,14 +82,14 @@ def run(args) -> dict:
     acc = chamfer_points(rec, gt_ng).a_to_b
     comp = chamfer_points(rec, gv[rng.choice(len(gv), min(len(gv), 200_000), replace=False)]).b_to_a
     g, o, r = scene.walkable_grid(pad=wconf.robot_radius_m)
-    gt = erode_walkable(WalkableMap(g, o, r), wconf.robot_radius_m)
+    gt = erode_walkable(WalkableGrid(g, o, r), wconf.robot_radius_m)
     # compare on the stretch the walk covers and sees: the GT grid spans the whole modelled
     # street, and a forward camera 1.5 m up first sees the ground about 3-4 m ahead
     x0, x1 = T[:, 0, 3].min() + args.unseen_m, T[:, 0, 3].max()
     c0, c1 = (np.floor((np.array([x0, x1]) - gt.origin[0]) / gt.resolution)).astype(int)
-    gt_crop = WalkableMap(gt.grid[:, c0:c1], gt.origin + [c0 * gt.resolution, 0], gt.resolution)
+    gt_crop = WalkableGrid(gt.grid[:, c0:c1], gt.origin + [c0 * gt.resolution, 0], gt.resolution)
     wc = wm.world_to_cell(np.array([x0, x1]), np.zeros(2))[1]
-    wm_crop = WalkableMap(wm.grid[:, max(wc[0], 0):wc[1]],
+    wm_crop = WalkableGrid(wm.grid[:, max(wc[0], 0):wc[1]],
                           wm.origin + [max(wc[0], 0) * wm.resolution, 0], wm.resolution)
     return dict(preset=args.preset, views=len(T), width=W, height=H, noise=args.noise,
                 render_s=round(t_render, 2), mesh_s=round(t_mesh, 2),
@@ -104,9 +105,9 @@ def run(args) -> dict:
 def run_from_splats(args) -> dict:
     from pathlib import Path
 
-    from vid2sim.factory.posed import PosedClip
-    from vid2sim.factory.splat_views import SplatViewConfig, render_views
-    from vid2sim.factory.synthetic.evaluate import scene_errors
+    from vid2sim.factory.sfm.posed import PosedClip
+    from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
+    from vid2sim.factory.evaluation.synthetic_gt import scene_errors
     from vid2sim.splats.ply import read_ply
 
     work = Path(args.from_splats)

@@ -24,7 +24,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from common import hardware_line  # noqa: E402  (benchmarks/common.py)
-from vid2sim.factory.pipeline import ingest, preset  # noqa: E402
+from vid2sim.factory.runtime.pipeline import ingest, preset  # noqa: E402
 
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 

@@ -25,7 +25,7 @@ from typing import Optional
 
 import numpy as np
 
-from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import config as C
 from vid2sim.factory.recon.trainer import main as reconstruct
 
@@ -59,8 +59,9 @@ def real_clip(work: Path) -> Optional[Path]:
         print(f"[real] skipped: {REAL} is absent")
         return None
     try:
-        from vid2sim.factory import decode, masks, metric, sfm
-        from vid2sim.factory.pipeline import preset as pipeline_preset
+        from vid2sim.factory.ingest import decode, masks
+        from vid2sim.factory.sfm import metric, sfm
+        from vid2sim.factory.runtime.pipeline import preset as pipeline_preset
     except ImportError as e:
         print(f"[real] skipped: SfM/metric stages not available ({e})")
         return None

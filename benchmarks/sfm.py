@@ -41,7 +41,7 @@ def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
 
 def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tuple[Path, Path]:
     """The factory's decode (10 fps, faces blurred) and masks stages."""
-    from vid2sim.factory import decode, masks
+    from vid2sim.factory.ingest import decode, masks
 
     dconf = decode.DecodeConf(fps=10.0, max_side=max_side, workers=2)
     ddir = timed(times, "decode", lambda: decode.main(dconf, str(video), work / "decode"))
@@ -51,7 +51,7 @@ def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tupl
 
 def sfm_and_metric(sconf: Any, mconf: Any, images: Path, masks_dir: Any, work: Path,
                    times: dict) -> tuple[Path, Path, dict]:
-    from vid2sim.factory import metric, sfm
+    from vid2sim.factory.sfm import metric, sfm
 
     sdir = timed(times, "sfm", lambda: sfm.main(sconf, images, masks_dir, work / "sfm"))
     pdir = timed(times, "metric", lambda: metric.main(mconf, sdir, work / "metric"))
@@ -83,9 +83,9 @@ def frame_facts(pdir: Path) -> dict:
 
 
 def run_gopro(work: Path, preset: str) -> dict:
-    from vid2sim.factory import metric, sfm
-    from vid2sim.factory.camera_model import LensHint
-    from vid2sim.factory.eval_poses import gopro_rotation_errors, load_posed_clip
+    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm.camera_model import LensHint
+    from vid2sim.factory.evaluation.poses import gopro_rotation_errors, load_posed_clip
 
     src = DATA / "gopro_max_sidewalk"
     times: dict = {}
@@ -117,7 +117,7 @@ def gravity_error_deg(pdir: Path, csv_path: Path, fps: float = 29.97) -> float:
     """Median angle between our world down (-z) in camera axes and the GoPro GRAV vector."""
     import csv
 
-    from vid2sim.factory.posed import PosedClip
+    from vid2sim.factory.sfm.posed import PosedClip
 
     with open(csv_path, newline="") as f:
         grav = {int(r["sample"]): np.array([float(r[f"grav_{a}"]) for a in "xyz"]) for r in csv.DictReader(f)}
@@ -137,8 +137,8 @@ def kitti_K(calib: Path) -> list[float]:
 
 
 def run_kitti(work: Path, preset: str) -> dict:
-    from vid2sim.factory import metric, sfm
-    from vid2sim.factory.eval_poses import evaluate, load_kitti_poses, load_posed_clip
+    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.evaluation.poses import evaluate, load_kitti_poses, load_posed_clip
 
     src = DATA / "kitti_rural"
     times: dict = {}
@@ -156,7 +156,7 @@ def run_kitti(work: Path, preset: str) -> dict:
 
 
 def run_lund(work: Path, preset: str) -> dict:
-    from vid2sim.factory import metric, sfm
+    from vid2sim.factory.sfm import metric, sfm
 
     src = DATA / "opensfm_lund_street"
     times: dict = {}
@@ -166,8 +166,8 @@ def run_lund(work: Path, preset: str) -> dict:
 
 
 def run_synthetic(work: Path, preset: str) -> dict:
-    from vid2sim.factory import metric, sfm
-    from vid2sim.factory.eval_poses import evaluate, load_posed_clip
+    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.evaluation.poses import evaluate, load_posed_clip
     from vid2sim.factory.synthetic import generate_street, render_video
     from vid2sim.factory.synthetic import preset as street_preset
 

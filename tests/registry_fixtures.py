@@ -13,8 +13,9 @@ from typing import Optional
 
 import numpy as np
 
-from vid2sim.factory.posed import PosedClip, PosedFrame
-from vid2sim.registry.bundle import make_scene_json, write_bundle
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
+from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.scene import make_scene_json
 
 
 def write_splats_ply(path: Path, n: int = 300, seed: int = 0, sh_rest: int = 0) -> Path:

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from vid2sim.factory.bundle_assembly import tag
-from vid2sim.registry.bundle import make_scene_json
+from vid2sim.factory.runtime.bundle_assembly import tag
+from vid2sim.formats.scene import make_scene_json
 
 
 def test_free_text_tags_are_made_valid_for_the_registry():

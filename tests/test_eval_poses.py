@@ -11,12 +11,12 @@ from scipy.spatial.transform import Rotation
 from typer.testing import CliRunner
 
 from tests.conftest import shared_data_path
-from vid2sim.cli import app
-from vid2sim.factory.eval_poses import (
+from vid2sim.cli.app import app
+from vid2sim.factory.evaluation.poses import (
     PoseEvalError, Trajectory, apply_sim3, ate, evaluate, gopro_rotation_errors, load_colmap_model,
     load_gopro_orientation, load_kitti_poses, load_trajectory, load_transforms_json, rpe, umeyama,
 )
-from vid2sim.factory.posed import PosedClip, PosedFrame
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
 from vid2sim.factory.synthetic import StreetConfig
 from vid2sim.factory.synthetic.trajectory import walking_poses
 

@@ -13,9 +13,9 @@ import pyarrow.parquet as pq
 import pytest
 
 from ingest_media import make_video, panning_frames, texture, write_video
-from vid2sim.factory import decode
-from vid2sim.factory.privacy import FaceBlurrer, FaceConf
-from vid2sim.factory.stage import StageError, load_record
+from vid2sim.factory.ingest import decode
+from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConf
+from vid2sim.factory.runtime.stage_cache import StageError, load_record
 
 CONF = decode.DecodeConf(workers=1)
 

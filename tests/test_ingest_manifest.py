@@ -10,10 +10,10 @@ import pytest
 import yaml
 
 from ingest_media import make_video
-from vid2sim.factory.clips import ClipsConf, plan_clips, split_windows
-from vid2sim.factory.manifest import load_manifest, parse_row
-from vid2sim.factory.sources import resolve_source
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.ingest.clips import ClipsConf, plan_clips, split_windows
+from vid2sim.factory.ingest.clip_list import load_manifest, parse_row
+from vid2sim.factory.ingest.sources import resolve_source
+from vid2sim.factory.runtime.stage_cache import StageError
 
 ROWS = [
     {"source": "walk.mp4", "licence": "CC-BY-4.0", "start": 0.0, "end": 1.5, "group": "g1",
@@ -109,7 +109,7 @@ def test_plan_clips(tmp_path: Path) -> None:
 def test_plan_manifest_isolates_bad_sources(tmp_path: Path) -> None:
     import socket
 
-    from vid2sim.factory.clips import plan_manifest
+    from vid2sim.factory.ingest.clips import plan_manifest
 
     with socket.socket() as sock:  # a loopback port with nobody listening
         sock.bind(("127.0.0.1", 0))

@@ -12,8 +12,8 @@ import pytest
 import torch
 
 from ingest_media import object_box, panning_frames
-from vid2sim.factory import decode, masks
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.ingest import decode, masks
+from vid2sim.factory.runtime.stage_cache import StageError
 
 OBJ = dict(size=36, vx=-2, vy=1, x=150, y=40)  # moves against a camera panning at 3 px/frame
 

@@ -10,8 +10,8 @@ import pyarrow.parquet as pq
 import pytest
 
 from conftest import shared_data_path
-from vid2sim.factory import decode, masks
-from vid2sim.factory.sources import resolve_source
+from vid2sim.factory.ingest import decode, masks
+from vid2sim.factory.ingest.sources import resolve_source
 
 pytestmark = pytest.mark.shared_data
 

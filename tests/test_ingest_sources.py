@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from ingest_media import make_video, texture
-from vid2sim.factory.sources import list_images, resolve_source, sha256_file
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.ingest.sources import list_images, resolve_source, sha256_file
+from vid2sim.factory.runtime.stage_cache import StageError
 
 
 @pytest.fixture

@@ -8,12 +8,13 @@ import open3d as o3d
 import pytest
 import trimesh
 
-from vid2sim.factory import meshing, walkable
-from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
-from vid2sim.factory.meshing import DepthView, MeshingConfig, MeshingError, build_meshes
-from vid2sim.factory.raycast import RaycastRenderer, look_at
-from vid2sim.factory.visual_mesh import load_visual_mesh, render_rgb
-from vid2sim.factory.walkable import WalkableConfig, WalkableMap, walkable_map
+from vid2sim.factory.geometry import meshing, walkable
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance, grid_iou
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, MeshingError, build_meshes
+from vid2sim.factory.geometry.raycast import RaycastRenderer, look_at
+from vid2sim.factory.geometry.visual_mesh import load_visual_mesh, render_rgb
+from vid2sim.factory.geometry.walkable import WalkableConfig, walkable_map
+from vid2sim.formats.walkable import WalkableGrid, load_walkable
 
 GROUND_RGB, OBST_RGB = (90, 90, 90), (200, 60, 40)
 # obstacles: (centre x, y), (size x, y), height
@@ -61,7 +62,7 @@ def ring_views(scene: trimesh.Trimesh, n: int = 12) -> tuple[list[DepthView], np
     return views, np.array(path)
 
 
-def analytic_walkable(res: float, radius: float) -> WalkableMap:
+def analytic_walkable(res: float, radius: float) -> WalkableGrid:
     """GT: plane minus obstacle footprints inflated by the robot radius, on a res grid."""
     n = int(round(2 * HALF / res))
     xs = -HALF + (np.arange(n) + 0.5) * res
@@ -73,7 +74,7 @@ def analytic_walkable(res: float, radius: float) -> WalkableMap:
         free &= np.hypot(dx, dy) > radius
     (px, py), r, _ = POLE
     free &= np.hypot(X - px, Y - py) > r + radius
-    return WalkableMap(free.astype(np.uint8), (-HALF, -HALF), res)
+    return WalkableGrid(free.astype(np.uint8), (-HALF, -HALF), res)
 
 
 @pytest.fixture(scope="module")
@@ -190,7 +191,7 @@ def test_stage_main_writes_and_skips(scene_data, tmp_path):
     assert (out / "collision.ply").stat().st_mtime_ns == mtime
     wout = walkable.main(WalkableConfig(), np.load(out / "ground_points.npy"),
                          out / "collision.ply", path, tmp_path / "walk", input_key="k1")
-    wm = WalkableMap.load(wout / "walkable.npz")
+    wm = load_walkable(wout / "walkable.npz")
     assert wm.lookup(path[:, 0], path[:, 1]).all()
 
 

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from vid2sim.factory import metric
-from vid2sim.factory.eval_poses import load_transforms_json
-from vid2sim.factory.posed import PosedClip
-from vid2sim.factory.stage import StageError, mark_done
+from vid2sim.factory.sfm import metric
+from vid2sim.factory.evaluation.poses import load_transforms_json
+from vid2sim.factory.sfm.posed import PosedClip
+from vid2sim.factory.runtime.stage_cache import StageError, mark_done
 
 W, H, F = 640, 480, 400.0
 

@@ -11,7 +11,7 @@ from cluster_fixtures import s3_server
 
 from vid2sim.factory.runtime.object_store import MARKER, ObjectStore
 from vid2sim.factory.runtime.staging import OnStore, local_clip_dir
-from vid2sim.factory.stage import is_done, mark_done
+from vid2sim.factory.runtime.stage_cache import is_done, mark_done
 
 
 @pytest.fixture(scope="module")

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 import ray
 
-from vid2sim.factory.orchestrator import StageSpec, ensure_ray, run_clips
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.runtime.orchestrator import StageSpec, ensure_ray, run_clips
+from vid2sim.factory.runtime.stage_cache import StageError
 
 
 # Test functions live in a module Ray workers cannot import: ship them by value.

@@ -10,15 +10,15 @@ from pathlib import Path
 import pytest
 import ray
 
-from vid2sim.factory.clips import ClipSpec
-from vid2sim.factory.orchestrator import ensure_ray, run_clips
-from vid2sim.factory.pipeline import ClipJob, PipelineConfig, STAGES, StageSpec
+from vid2sim.factory.ingest.clips import ClipSpec
+from vid2sim.factory.runtime.orchestrator import ensure_ray, run_clips
+from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, STAGES, StageSpec
 from vid2sim.factory.recon.config import preset as recon_preset
-from vid2sim.factory.sources import resolve_source
+from vid2sim.factory.ingest.sources import resolve_source
 from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.factory.synthetic.stage import main as make_street
 from vid2sim.registry import Registry
-from vid2sim.registry.bundle import validate_bundle
+from vid2sim.formats.bundle import validate_bundle
 
 BACK_HALF = ("recon", "meshing", "bundle")
 

@@ -6,13 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon.config import DepthPriorConfig
 from vid2sim.factory.recon.data import load_views
 from vid2sim.factory.recon.depth_prior import align_disparity, estimate_priors, plane_homography
 from vid2sim.factory.recon.evaluate import load_gt_depths
-from vid2sim.factory.recon.toy import make_toy_clip, toy_poses
-from vid2sim.factory.stage import StageError
+from recon_toy import make_toy_clip, toy_poses
+from vid2sim.factory.runtime.stage_cache import StageError
 
 
 @pytest.fixture(scope="module")

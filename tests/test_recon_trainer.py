@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import config as C
 from vid2sim.factory.recon.data import load_views
-from vid2sim.factory.recon.toy import make_toy_clip
+from recon_toy import make_toy_clip
 from vid2sim.factory.recon.trainer import main, train
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.splats.ply import read_ply
 
 
@@ -94,7 +94,7 @@ def test_bad_inputs_are_named(toy, tmp_path):
 def test_cli_recon_run(toy, tmp_path):
     from typer.testing import CliRunner
 
-    from vid2sim.cli import app
+    from vid2sim.cli.app import app
 
     res = CliRunner().invoke(app, ["recon", "run", str(toy), str(tmp_path / "cli"), "--baseline",
                                    "--iterations", "8", "--json"])

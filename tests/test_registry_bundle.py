@@ -11,9 +11,12 @@ import pyarrow.parquet as pq
 import pytest
 from registry_fixtures import make_bundle, write_box_ply
 
-from vid2sim.registry.bundle import (
-    CAMERAS_PARQUET, COLLISION_PLY, SCENE_JSON, SPLATS_PLY, WALKABLE_NPZ, BundleError,
-    check_scene_id, load_cameras, load_walkable, validate_bundle)
+from vid2sim.formats.bundle import COLLISION_PLY, validate_bundle
+from vid2sim.formats.cameras import CAMERAS_PARQUET, load_cameras
+from vid2sim.formats.errors import BundleError
+from vid2sim.formats.scene import SCENE_JSON, check_scene_id
+from vid2sim.formats.splat_ply import SPLATS_PLY
+from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
 
 
 @pytest.fixture
@@ -30,8 +33,8 @@ def test_round_trip(bundle):
     assert len(info.bounds) == 6 and info.bounds[0] <= info.bounds[3]
     assert info.mesh_bounds == pytest.approx((-2, -1.5, -1, 2, 1.5, 1))
     assert {"scene.json", "splats.ply", "visual.ply", "colmap/points3D.txt"} <= set(info.artifacts)
-    grid, origin, res = load_walkable(bundle / WALKABLE_NPZ)
-    assert grid.dtype == np.uint8 and tuple(origin) == (-1.0, -2.0) and res == 0.5
+    walk = load_walkable(bundle / WALKABLE_NPZ)
+    assert walk.grid.dtype == np.uint8 and tuple(walk.origin) == (-1.0, -2.0) and walk.resolution == 0.5
     assert load_cameras(bundle / CAMERAS_PARQUET).num_rows == 16
     scene = json.loads((bundle / SCENE_JSON).read_text())
     assert scene["world_frame"] == {"units": "m", "up": "+z", "ground_z": 0, "scale_source": "test-fixture"}
@@ -108,7 +111,7 @@ def test_cameras_wrong_schema(bundle):
 
 
 def test_write_bundle_failure_leaves_nothing(tmp_path, bundle):
-    from vid2sim.registry.bundle import write_bundle
+    from vid2sim.formats.bundle import write_bundle
 
     scene = json.loads((bundle / SCENE_JSON).read_text())
     out = tmp_path / "out"

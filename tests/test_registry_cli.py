@@ -11,7 +11,7 @@ from pathlib import Path
 from registry_fixtures import make_bundle
 from typer.testing import CliRunner
 
-from vid2sim.cli import app
+from vid2sim.cli.app import app
 
 runner = CliRunner()
 

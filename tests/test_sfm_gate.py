@@ -8,9 +8,9 @@ import cv2
 import numpy as np
 import pytest
 
-from vid2sim.factory import sfm
-from vid2sim.factory.camera_model import LensHint, choose_camera_model
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.sfm import sfm
+from vid2sim.factory.sfm.camera_model import LensHint, choose_camera_model
+from vid2sim.factory.runtime.stage_cache import StageError
 
 
 def _texture(rng: np.random.Generator, w: int = 640, h: int = 360) -> np.ndarray:
@@ -95,7 +95,7 @@ def test_requested_model_and_bad_model():
 def test_cli_reports_named_error(tmp_path):
     from typer.testing import CliRunner
 
-    from vid2sim.cli import app
+    from vid2sim.cli.app import app
 
     rng = np.random.default_rng(2)
     images = _write_frames(tmp_path / "images", [_texture(rng, 160, 120) for _ in range(3)])

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from conftest import shared_data_path
-from vid2sim.factory import metric, sfm
-from vid2sim.factory.eval_poses import evaluate, load_kitti_poses, load_posed_clip
+from vid2sim.factory.sfm import metric, sfm
+from vid2sim.factory.evaluation.poses import evaluate, load_kitti_poses, load_posed_clip
 
 
 def kitti_intrinsics(calib: Path) -> list[float]:

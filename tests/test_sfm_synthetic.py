@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from vid2sim.factory import decode, metric, sfm
-from vid2sim.factory.eval_poses import evaluate, load_posed_clip
+from vid2sim.factory.ingest import decode
+
+from vid2sim.factory.sfm import metric, sfm
+from vid2sim.factory.evaluation.poses import evaluate, load_posed_clip
 from vid2sim.factory.synthetic import generate_street, render_video
 from vid2sim.factory.synthetic import preset as street_preset
 

@@ -7,7 +7,8 @@ import open3d as o3d
 import pytest
 
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
-from vid2sim.registry.bundle import load_walkable, validate_bundle
+from vid2sim.formats.bundle import validate_bundle
+from vid2sim.formats.walkable import load_walkable
 from vid2sim.splats.ply import read_ply
 
 
@@ -61,6 +62,6 @@ def test_collision_mesh_has_no_ground_and_walkable_matches(bundle):
     mesh = trimesh.load(out / "collision.ply", force="mesh", process=False)
     face_z = mesh.vertices[mesh.faces][:, :, 2]
     assert not (np.ptp(face_z, axis=1) < 1e-9)[face_z.max(1) < 1e-6].any()  # no flat faces at ground level
-    grid, origin, res = load_walkable(out / "walkable.npz")
+    walk = load_walkable(out / "walkable.npz")
     g2, o2, r2 = scene.walkable_grid()
-    assert np.array_equal(grid, g2) and np.allclose(origin, o2) and res == r2
+    assert np.array_equal(walk.grid, g2) and np.allclose(walk.origin, o2) and walk.resolution == r2

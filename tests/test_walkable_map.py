@@ -6,9 +6,11 @@ import numpy as np
 import pytest
 import trimesh
 
-from vid2sim.factory import walkable
-from vid2sim.factory.geometry_metrics import chamfer_distance, grid_iou
-from vid2sim.factory.walkable import WalkableConfig, WalkableError, WalkableMap, walkable_map
+from vid2sim.factory.geometry import walkable
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance, grid_iou
+from vid2sim.factory.geometry.walkable import WalkableConfig, WalkableError, walkable_map
+from vid2sim.formats.errors import BundleError
+from vid2sim.formats.walkable import WalkableGrid, load_walkable
 
 
 def plane_points(x0, x1, y0, y1, step=0.05) -> np.ndarray:
@@ -81,15 +83,15 @@ def test_npz_round_trip_and_bad_files(tmp_path):
     with np.load(p) as z:
         assert set(z.files) == {"grid", "origin", "resolution"}
         assert z["grid"].dtype == np.uint8 and z["origin"].shape == (2,)
-    back = WalkableMap.load(p)
+    back = load_walkable(p)
     assert np.array_equal(back.grid, wm.grid) and np.allclose(back.origin, wm.origin)
     assert back.resolution == wm.resolution and grid_iou(back, wm) == 1.0
     np.savez(tmp_path / "nokeys.npz", grid=wm.grid)
-    with pytest.raises(WalkableError, match="missing keys"):
-        WalkableMap.load(tmp_path / "nokeys.npz")
+    with pytest.raises(BundleError, match="lacks key.*origin"):
+        load_walkable(tmp_path / "nokeys.npz")
     (tmp_path / "junk.npz").write_bytes(b"not a zip")
-    with pytest.raises(WalkableError, match="junk.npz"):
-        WalkableMap.load(tmp_path / "junk.npz")
+    with pytest.raises(BundleError, match="junk.npz"):
+        load_walkable(tmp_path / "junk.npz")
 
 
 def test_walkable_stage_rejects_unreadable_mesh(tmp_path):
@@ -101,12 +103,12 @@ def test_walkable_stage_rejects_unreadable_mesh(tmp_path):
 
 
 def test_grid_iou_resamples_across_resolution_and_origin():
-    a = WalkableMap(np.ones((20, 20), np.uint8), (0.0, 0.0), 0.1)  # [0, 2]^2
-    b = WalkableMap(np.ones((10, 10), np.uint8), (1.0, 0.0), 0.2)  # [1, 3] x [0, 2]
+    a = WalkableGrid(np.ones((20, 20), np.uint8), (0.0, 0.0), 0.1)  # [0, 2]^2
+    b = WalkableGrid(np.ones((10, 10), np.uint8), (1.0, 0.0), 0.2)  # [1, 3] x [0, 2]
     assert grid_iou(a, b) == pytest.approx(2.0 / 6.0, abs=1e-6)
-    c = WalkableMap(np.ones((40, 40), np.uint8), (0.0, 0.0), 0.05)  # same square, finer
+    c = WalkableGrid(np.ones((40, 40), np.uint8), (0.0, 0.0), 0.05)  # same square, finer
     assert grid_iou(a, c) == pytest.approx(1.0)
-    empty = WalkableMap(np.zeros((5, 5), np.uint8), (0.0, 0.0), 0.1)
+    empty = WalkableGrid(np.zeros((5, 5), np.uint8), (0.0, 0.0), 0.1)
     assert grid_iou(empty, empty) == 1.0 and grid_iou(a, empty) == 0.0
 
 

@@ -1,11 +1,12 @@
 """Versioned scene registry: content-addressed blobs + Delta Lake manifests.
 
-`bundle` defines the scene-bundle folder format (validate/write); `Registry` (store) commits
+The scene-bundle format lives in `vid2sim.formats`; `Registry` (store) commits
 bundles, lists/queries/splits them and materialises them back for the envs.
 """
 
-from vid2sim.registry.bundle import (BundleError, BundleInfo, make_scene_json, validate_bundle,
-                                     write_bundle)
+from vid2sim.formats.bundle import BundleInfo, validate_bundle, write_bundle
+from vid2sim.formats.errors import BundleError
+from vid2sim.formats.scene import make_scene_json
 from vid2sim.registry.records import Artifact, SceneRecord
 from vid2sim.registry.split import Split, SplitError
 from vid2sim.registry.store import Registry, RegistryConfig, RegistryError, SceneNotFound

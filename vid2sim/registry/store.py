@@ -33,7 +33,8 @@ from urllib.parse import urlparse
 import pyarrow as pa
 
 from vid2sim.registry.blobs import ArrowBlobStore, BlobStore, LocalBlobStore, arrow_filesystem, sha256_file
-from vid2sim.registry.bundle import SCENE_JSON, TAG_RE, BundleInfo, check_scene_id, validate_bundle
+from vid2sim.formats.bundle import BundleInfo, validate_bundle
+from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
 from vid2sim.registry.manifest import AsOf, ManifestTable, now_utc
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
                                       records)

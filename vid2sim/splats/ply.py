@@ -1,9 +1,7 @@
 """Read and write the standard 3DGS PLY (binary little-endian, one `vertex` element).
 
-Properties: x y z nx ny nz f_dc_0..2 f_rest_0..(3*(K-1)-1) opacity scale_0..2 rot_0..3,
-all float32. f_rest is channel-major as in the original 3DGS: the K-1 higher-band
-coefficients of R, then of G, then of B. opacity is the logit, scale_* the log-scales,
-rot_* the (w, x, y, z) quaternion (not necessarily normalised).
+The property list and its meaning are the bundle contract in `vid2sim.formats.splat_ply`
+(normals written as zeros, optional on read; the quaternion need not be normalised).
 """
 
 from __future__ import annotations
@@ -15,22 +13,15 @@ import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
+from vid2sim.formats.splat_ply import REQUIRED_PROPERTIES, property_names
+
 from .model import GaussianModel
 from .sh import sh_degree_from_coeffs
 
-REQUIRED = ["x", "y", "z", "f_dc_0", "f_dc_1", "f_dc_2", "opacity",
-            "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
 
 
 class PlyFormatError(ValueError):
     """A PLY that is not a 3DGS Gaussian file."""
-
-
-def _property_names(model: GaussianModel) -> list[str]:
-    n_rest = 3 * (model.sh.shape[1] - 1)
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(n_rest)]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
 
 
 def write_ply(model: GaussianModel, path: str | Path) -> Path:
@@ -44,7 +35,7 @@ def write_ply(model: GaussianModel, path: str | Path) -> Path:
     columns = np.concatenate([m.means.numpy(), np.zeros((n, 3), np.float32), sh[:, 0, :], rest,
                               m.opacity_logits.numpy()[:, None], m.log_scales.numpy(),
                               m.quats.numpy()], axis=1)
-    names = _property_names(m)
+    names = property_names(m.sh.shape[1])
     data = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
         data[name] = columns[:, i]
@@ -65,7 +56,7 @@ def read_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> GaussianMo
         raise PlyFormatError(f"{path}: no 'vertex' element, so not a Gaussian-splat PLY")
     v = ply["vertex"].data
     names = set(v.dtype.names or ())
-    missing = [p for p in REQUIRED if p not in names]
+    missing = [p for p in REQUIRED_PROPERTIES if p not in names]
     if missing:
         raise PlyFormatError(f"{path}: missing 3DGS properties {missing}")
     rest_names = sorted((p for p in names if re.fullmatch(r"f_rest_\d+", p)),

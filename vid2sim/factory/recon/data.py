@@ -13,8 +13,8 @@ from typing import Optional
 import cv2
 import numpy as np
 
-from vid2sim.factory.posed import PosedClip, PosedFrame
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
+from vid2sim.factory.runtime.stage_cache import StageError
 
 STAGE = "reconstruct"
 

@@ -23,7 +23,7 @@ import numpy as np
 
 from vid2sim.factory.recon.config import DepthPriorConfig
 from vid2sim.factory.recon.data import STAGE, View, scale_K
-from vid2sim.factory.stage import StageError
+from vid2sim.factory.runtime.stage_cache import StageError
 
 
 @dataclass

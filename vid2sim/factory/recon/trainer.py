@@ -20,7 +20,7 @@ from typing import Optional
 import numpy as np
 import torch
 
-from vid2sim.factory.posed import PosedClip
+from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import losses as L
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.data import STAGE, View, load_views, scene_extent
@@ -28,7 +28,7 @@ from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
 from vid2sim.factory.recon.params import SplatParams
-from vid2sim.factory.stage import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply

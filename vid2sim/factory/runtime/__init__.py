@@ -1,1 +1,2 @@
-"""Runtime support for the factory: where stage folders live (local disk or object store)."""
+"""Runtime: pipeline stage chain, Ray orchestrator, stage cache, progress, bundle assembly, demo,
+and the work store (local folder or object store) that stage folders live in."""

@@ -17,9 +17,10 @@ from typing import Iterator
 
 import pyarrow.fs as pafs
 
+from vid2sim.factory.runtime.stage_cache import MARKER as STAGE_MARKER
 from vid2sim.registry.blobs import arrow_filesystem
 
-MARKER = "stage.json"
+MARKER = STAGE_MARKER  # the stage cache marker (runtime/stage_cache.py)
 CHUNK = 1 << 22
 
 

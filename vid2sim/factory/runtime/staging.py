@@ -22,6 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Callable
 
+from vid2sim.factory.ingest.sources import is_uri, resolve_source
 from vid2sim.factory.runtime.object_store import MARKER, ObjectStore
 
 STAGE_FOLDERS = ("posed", "decode", "masks", "sfm", "metric", "recon", "meshing", "walkable", "bundle")
@@ -68,8 +69,6 @@ def sync_up(store: ObjectStore, clip_id: str, local: Path, folders: list[str]) -
 
 def _localize_source(ctx: dict, local: Path) -> dict:
     """Re-resolve a URI source on this node when the driver's cached copy is not here."""
-    from vid2sim.factory.sources import is_uri, resolve_source
-
     job = ctx.get("job")
     source = getattr(getattr(job, "spec", None), "source", None)
     if source is None or Path(source.path).exists() or not is_uri(source.uri):

@@ -13,6 +13,6 @@ from vid2sim.factory.synthetic.street import Obstacle, StreetScene, generate_str
 __all__ = ["PRESETS", "StreetConfig", "preset", "SyntheticClip", "StreetRenderer", "intrinsics",
            "render_video", "Obstacle", "StreetScene", "generate_street"]
 
-from vid2sim.factory.synthetic.bundle import GTBundleConfig, write_ground_truth_bundle  # noqa: E402
+from vid2sim.factory.synthetic.gt_bundle import GTBundleConfig, write_ground_truth_bundle  # noqa: E402
 
 __all__ += ["GTBundleConfig", "write_ground_truth_bundle"]

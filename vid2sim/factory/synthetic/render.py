@@ -24,8 +24,8 @@ import cv2
 import numpy as np
 import open3d as o3d
 
-from vid2sim.factory.posed import PosedClip, PosedFrame, holdout_split
-from vid2sim.factory.stage import StageError, is_done, mark_done, stage_key
+from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
+from vid2sim.factory.runtime.stage_cache import StageError, is_done, mark_done, stage_key
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.geometry import face_areas
 from vid2sim.factory.synthetic.mesh_io import write_mesh_ply

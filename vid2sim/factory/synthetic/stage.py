@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Optional
 
-from vid2sim.factory.synthetic.bundle import GTBundleConfig, write_ground_truth_bundle
+from vid2sim.factory.synthetic.gt_bundle import GTBundleConfig, write_ground_truth_bundle
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.render import render_video
 from vid2sim.factory.synthetic.street import generate_street

@@ -1,0 +1,59 @@
+"""`vid2sim` command line: one typer sub-app per subsystem.
+
+Every command that reports data takes `--json`. Only commands that work are registered.
+"""
+
+from __future__ import annotations
+
+import typer
+
+app = typer.Typer(
+    name="vid2sim",
+    help="Video-to-simulation data factory for robot navigation.",
+    no_args_is_help=True,
+    pretty_exceptions_show_locals=False,
+)
+
+
+def _register_subapps() -> None:
+    """Each subsystem adds one import + add_typer line here."""
+    from vid2sim.cli.registry import app as registry_app
+    app.add_typer(registry_app, name="registry")
+    from vid2sim.cli.eval import app as eval_app
+    app.add_typer(eval_app, name="eval")
+    from vid2sim.cli.sfm import app as sfm_app
+    app.add_typer(sfm_app, name="sfm")
+    from vid2sim.cli.ingest import ingest_command
+    app.command("ingest")(ingest_command)
+    from vid2sim.cli.recon import app as recon_app
+    app.add_typer(recon_app, name="recon")
+
+
+@app.command()
+def version() -> None:
+    """Print the code version."""
+    from vid2sim.versioning import code_version
+
+    typer.echo(code_version())
+
+
+@app.command()
+def demo(
+    registry: str = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
+    workdir: str = typer.Option("vid2sim-work", "--workdir", help="Work folder for stage outputs."),
+) -> None:
+    """Run the main job end to end on embedded defaults (no downloaded data)."""
+    from vid2sim.factory.runtime.demo import run_demo
+
+    run_demo(registry=registry, workdir=workdir)
+
+
+_register_subapps()
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,56 @@
+"""`vid2sim eval ...`: evaluation commands (pose accuracy against ground truth)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+app = typer.Typer(help="Evaluate factory outputs against ground truth.", no_args_is_help=True)
+
+
+@app.command("poses")
+def poses(
+    estimate: Path = typer.Option(..., "--estimate", help="PosedClip folder, COLMAP model, transforms.json or poses.txt."),
+    gt: Path = typer.Option(..., "--gt", help="Ground truth: KITTI poses.txt, synthetic clip folder, transforms.json or GoPro CSV."),
+    gt_format: str = typer.Option("auto", "--gt-format", help="kitti | synthetic | transforms | gopro-csv | colmap | auto"),
+    est_format: str = typer.Option("auto", "--est-format", help="posed | colmap | transforms | kitti | auto"),
+    fps: Optional[float] = typer.Option(None, "--fps", help="GoPro: frame rate to key sub-sampled estimate frames by timestamp."),
+    stride: int = typer.Option(1, "--stride", help="GoPro: estimate frame j is video frame j * stride."),
+    as_json: bool = typer.Option(False, "--json", help="Print the full report as JSON."),
+) -> None:
+    """ATE / RPE after Sim(3) alignment, or relative rotation error against GoPro telemetry."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from vid2sim.factory.evaluation.poses import PoseEvalError, evaluate_paths
+
+    try:
+        rep = evaluate_paths(estimate, gt, gt_format, est_format, fps=fps, stride=stride)
+    except PoseEvalError as e:
+        typer.echo(f"error: {e}", err=True)
+        raise typer.Exit(2)
+    if as_json:
+        typer.echo(json.dumps(rep, indent=2))
+        return
+    table = Table(title=f"poses: {estimate}")
+    table.add_column("metric")
+    table.add_column("value", justify="right")
+    if "rotation" in rep:
+        r = rep["rotation"]
+        table.add_row("matched frames", str(r["n_matched"]))
+        for k, d in r["deltas"].items():
+            table.add_row(f"rel. rot. err (k={k}) fitted mean/median deg",
+                          f"{d['fitted_mean_deg']:.3f} / {d['fitted_median_deg']:.3f}")
+            table.add_row(f"rel. rot. angle gap (k={k}) mean deg", f"{d['angle_gap_mean_deg']:.3f}")
+    else:
+        a = rep["ate"]
+        table.add_row("matched / gt frames", f"{rep['n_matched']} / {rep['n_gt']}")
+        table.add_row("ATE rmse (gt units)", f"{a['rmse']:.4f}")
+        table.add_row("ATE % of path", f"{a['rmse_pct_of_path']:.3f}")
+        table.add_row("Sim(3) scale", f"{a['scale']:.4f}")
+        for k, d in rep["rpe"].items():
+            table.add_row(f"RPE k={k} trans rmse / rot mean deg", f"{d['trans_rmse']:.4f} / {d['rot_mean_deg']:.3f}")
+    Console().print(table)

@@ -1,0 +1,1 @@
+"""Evaluation: pose metrics, geometry metrics, scoring against synthetic ground truth."""

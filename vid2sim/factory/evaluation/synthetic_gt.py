@@ -1,0 +1,75 @@
+"""Score a reconstructed scene of a synthetic street against its ground truth.
+
+Reads the rendered clip folder (GT poses, `ground_truth.json` with the street config) and the
+scene's outputs (estimated PosedClip, collision mesh, walkable map). The estimate lives in its
+own metric frame; a Sim(3) fitted on the camera centres (matched by timestamp) maps it onto the
+GT frame before the mesh and the map are compared.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from vid2sim.factory.evaluation.poses import ate
+from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays, \
+    sample_surface
+from vid2sim.factory.sfm.posed import PosedClip
+from vid2sim.factory.synthetic.config import StreetConfig
+from vid2sim.factory.synthetic.street import generate_street
+from vid2sim.formats.walkable import WalkableGrid
+
+
+def street_config(synthetic_dir: Path) -> StreetConfig:
+    """The StreetConfig a rendered clip was made with (from its ground_truth.json)."""
+    cfg = json.loads((Path(synthetic_dir) / "ground_truth.json").read_text())["config"]
+    return StreetConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in cfg.items()})
+
+
+def crop_x(wm: WalkableGrid, x0: float, x1: float) -> WalkableGrid:
+    """The columns of a walkable map between world x0 and x1."""
+    c = wm.world_to_cell(np.array([x0, x1]), np.zeros(2))[1]
+    c0 = max(int(c[0]), 0)
+    return WalkableGrid(wm.grid[:, c0:int(c[1])], wm.origin + np.array([c0 * wm.resolution, 0.0]),
+                       wm.resolution)
+
+
+def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Exact distance (m) from points [P, 3] to a triangle mesh (open3d raycasting scene)."""
+    import open3d as o3d
+
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
+                     o3d.core.Tensor(np.asarray(triangles, np.uint32)))
+    return rc.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+
+
+def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableGrid,
+                 robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000) -> dict:
+    """Pose ATE, collision-mesh accuracy (reconstruction -> GT obstacles, m), ground left in the
+    collision mesh, and walkable IoU over the walked x range (the first `unseen_m` metres, which a
+    camera 1.5 m up never sees, excluded) against the robot-centre GT map."""
+    gt_clip = PosedClip.load(synthetic_dir)
+    by_t = {round(f.timestamp, 3): f.cam_to_world[:3, 3] for f in gt_clip.frames}
+    frames = [f for f in estimate.frames if round(f.timestamp, 3) in by_t]
+    src = np.array([f.cam_to_world[:3, 3] for f in frames])  # [T, 3] estimate frame
+    dst = np.array([by_t[round(f.timestamp, 3)] for f in frames])  # [T, 3] GT frame
+    pose = ate(src, dst, with_scale=True)
+    s, R, t = pose["scale"], np.asarray(pose["rotation"]), np.asarray(pose["translation"])
+    scene = generate_street(street_config(synthetic_dir))
+    rec = s * sample_surface(*mesh_arrays(collision), samples) @ R.T + t  # [S, 3] in GT frame
+    dist = distance_to_mesh(rec, *scene.without_ground())  # [S] to the GT obstacles (no ground)
+    shifted = WalkableGrid(walkable.grid, walkable.origin + t[:2], walkable.resolution)  # R ~ I, s ~ 1
+    g, o, r = scene.walkable_grid(pad=robot_radius_m)
+    gt_map = erode_walkable(WalkableGrid(g, o, r), robot_radius_m)
+    path = s * src @ R.T + t
+    x0, x1 = path[:, 0].min() + unseen_m, path[:, 0].max()
+    return {"matched_frames": len(frames), "ate_m": pose["rmse"], "ate_pct_of_path": pose["rmse_pct_of_path"],
+            "metric_scale_error_pct": 100 * abs(s - 1.0),
+            "collision_accuracy_m": float(dist.mean()),
+            "collision_accuracy_median_m": float(np.median(dist)),
+            "ground_left_frac": float(np.mean((rec[:, 2] < 0.15) & (dist > 0.2))),
+            "walkable_iou": grid_iou(crop_x(shifted, x0, x1), crop_x(gt_map, x0, x1)),
+            "iou_x_range": [float(x0), float(x1)], "walkable_area_m2": walkable.area_m2()}

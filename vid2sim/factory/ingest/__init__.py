@@ -1,0 +1,1 @@
+"""Ingest stage: sources, clip lists, clips, video decode, privacy blur, dynamic masks."""

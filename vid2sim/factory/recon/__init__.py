@@ -1,0 +1,1 @@
+"""Recon stage: geometry-consistent Gaussian-splat training (losses, densification, depth priors)."""

@@ -1,0 +1,152 @@
+"""Run many clips through a chain of stages as Ray tasks.
+
+The driver keeps one state machine per clip: when a clip's stage finishes, its
+next stage is submitted; `ray.wait` multiplexes all clips, so clips advance
+independently and a clip that fails stops alone. Stage outputs are cached by
+the stage itself (see `stage.py`), so a re-run resumes after the last finished
+stage. Ray retries a task whose worker died (`max_retries`); a StageError is a
+verdict about the input and is not retried.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Callable, Optional, Sequence
+
+import ray
+
+from vid2sim.factory.runtime.stage_cache import StageError
+
+
+@dataclass(frozen=True)
+class StageSpec:
+    """One step of a clip's chain.
+
+    `fn(context: dict) -> dict` runs inside a Ray worker; it reads what earlier
+    stages put into the context and returns the keys it adds. `resources` are
+    Ray hints (num_cpus, num_gpus, memory).
+    """
+
+    name: str
+    fn: Callable[[dict], dict]
+    num_cpus: float = 1.0
+    num_gpus: float = 0.0
+
+
+@dataclass
+class ClipState:
+    clip_id: str
+    context: dict
+    stage_index: int = 0
+    status: str = "pending"  # pending | running | done | failed
+    stage: str = ""
+    reason: str = ""
+    detail: str = ""
+    seconds: dict = field(default_factory=dict)
+    started: float = 0.0
+
+
+@dataclass(frozen=True)
+class ClipResult:
+    clip_id: str
+    ok: bool
+    failed_stage: str
+    reason: str
+    detail: str
+    context: dict
+    seconds: dict
+
+
+def _run_stage(fn: Callable[[dict], dict], stage_name: str, context: dict) -> dict:
+    """Executed in a Ray worker: run the stage, turn errors into a verdict record."""
+    t0 = time.perf_counter()
+    try:
+        added = fn(context) or {}
+        return {"ok": True, "added": added, "seconds": time.perf_counter() - t0}
+    except StageError as e:
+        return {"ok": False, "reason": e.reason, "detail": e.detail or str(e),
+                "seconds": time.perf_counter() - t0}
+    except Exception as e:  # a bug or an unexpected input: report, do not crash the batch
+        tb = traceback.format_exc(limit=6)
+        return {"ok": False, "reason": f"error:{type(e).__name__}", "detail": f"{e}\n{tb}",
+                "seconds": time.perf_counter() - t0}
+
+
+def ensure_ray(address: Optional[str] = None, num_cpus: Optional[int] = None) -> None:
+    """Connect to `address`, or start an embedded local Ray runtime once."""
+    if ray.is_initialized():
+        return
+    if address:
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+    else:
+        ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True,
+                 log_to_driver=False, configure_logging=False)
+
+
+def run_clips(
+    clips: Sequence[tuple[str, dict]],
+    stages: Sequence[StageSpec],
+    *,
+    max_retries: int = 2,
+    on_update: Optional[Callable[[ClipState], None]] = None,
+    on_clip_done: Optional[Callable[[ClipState], None]] = None,
+) -> list[ClipResult]:
+    """Push each (clip_id, context) through `stages`; returns one result per clip.
+
+    `on_update` is called in the driver whenever a clip changes stage or status;
+    `on_clip_done` when a clip finished all stages (e.g. to commit it), and may
+    raise StageError to mark the clip failed at that point.
+    """
+    if not ray.is_initialized():
+        ensure_ray()
+    remote = ray.remote(_run_stage)
+    states = {cid: ClipState(cid, dict(ctx)) for cid, ctx in clips}
+    inflight: dict[ray.ObjectRef, str] = {}
+
+    def submit(state: ClipState) -> None:
+        spec = stages[state.stage_index]
+        state.status, state.stage, state.started = "running", spec.name, time.perf_counter()
+        ref = remote.options(num_cpus=spec.num_cpus, num_gpus=spec.num_gpus,
+                             max_retries=max_retries, name=f"{spec.name}:{state.clip_id}"
+                             ).remote(spec.fn, spec.name, state.context)
+        inflight[ref] = state.clip_id
+        if on_update:
+            on_update(state)
+
+    def fail(state: ClipState, reason: str, detail: str) -> None:
+        state.status, state.reason, state.detail = "failed", reason, detail
+        if on_update:
+            on_update(state)
+
+    for state in states.values():
+        submit(state)
+    while inflight:
+        ready, _ = ray.wait(list(inflight), num_returns=1)
+        state = states[inflight.pop(ready[0])]
+        try:
+            out = ray.get(ready[0])
+        except Exception as e:  # worker died more often than max_retries, or similar
+            fail(state, f"ray:{type(e).__name__}", str(e)[:2000])
+            continue
+        state.seconds[state.stage] = out["seconds"]
+        if not out["ok"]:
+            fail(state, out["reason"], out["detail"])
+            continue
+        state.context.update(out["added"])
+        state.stage_index += 1
+        if state.stage_index < len(stages):
+            submit(state)
+            continue
+        try:
+            state.stage = "commit"
+            if on_clip_done:
+                on_clip_done(state)
+            state.status = "done"
+            if on_update:
+                on_update(state)
+        except StageError as e:
+            fail(state, e.reason, e.detail or str(e))
+    return [ClipResult(s.clip_id, s.status == "done", s.stage if s.status == "failed" else "",
+                       s.reason, s.detail, s.context, s.seconds) for s in states.values()]

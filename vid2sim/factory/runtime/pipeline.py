@@ -1,0 +1,321 @@
+"""The factory pipeline: clips -> stages (Ray tasks) -> scene bundles -> registry.
+
+Per clip, in `workdir/<clip_id>/` (a local folder, or an object-store URI: then each stage runs
+in its node's scratch and syncs with the store, see runtime/staging.py):
+  decode/  masks/  sfm/  metric/  recon/  meshing/  walkable/  bundle/
+Each folder is a stage output with its `stage.json` marker (config + input hash), so a
+re-run resumes after the last finished stage. The finished bundle is committed to the
+registry by the driver (`Registry.add` is atomic). A clip that fails reports its stage
+and reason; the others go on.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Optional, Sequence, Union
+
+import numpy as np
+
+from vid2sim.factory.ingest.clips import ClipsConf, ClipSpec, plan_clips
+from vid2sim.factory.ingest.decode import DecodeConf
+from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest, parse_row
+from vid2sim.factory.ingest.masks import MasksConf
+from vid2sim.factory.geometry.meshing import MeshingConfig
+from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
+from vid2sim.factory.recon.config import ReconConfig
+from vid2sim.factory.recon.config import preset as recon_preset
+from vid2sim.factory.runtime.object_store import is_remote
+from vid2sim.factory.runtime.staging import OnStore, fetch_from_store
+from vid2sim.factory.ingest.sources import resolve_source
+from vid2sim.factory.geometry.splat_views import SplatViewConfig
+from vid2sim.factory.runtime.stage_cache import StageError, load_record
+from vid2sim.factory.geometry.walkable import WalkableConfig
+from vid2sim.versioning import config_hash
+
+MANIFEST_SUFFIXES = {".yaml", ".yml", ".csv", ".parquet"}
+
+
+def _sfm_config(preset: str) -> Any:
+    from vid2sim.factory.sfm.sfm import preset as sfm_preset
+
+    return sfm_preset("fast" if preset == "fast" else "accurate")
+
+
+def _metric_config() -> Any:
+    from vid2sim.factory.sfm.metric import MetricConfig
+
+    return MetricConfig()
+
+
+@dataclass
+class PipelineConfig:
+    """Every stage's config; saved with each scene (pipeline hash = hash of this)."""
+
+    preset: str = "fast"
+    clips: ClipsConf = field(default_factory=ClipsConf)
+    decode: DecodeConf = field(default_factory=DecodeConf)
+    masks: MasksConf = field(default_factory=MasksConf)
+    sfm: Any = None
+    metric: Any = None
+    recon: ReconConfig = field(default_factory=lambda: recon_preset("fast"))
+    views: SplatViewConfig = field(default_factory=SplatViewConfig)
+    meshing: MeshingConfig = field(default_factory=MeshingConfig)
+    walkable: WalkableConfig = field(default_factory=WalkableConfig)
+
+    def resolved(self) -> "PipelineConfig":
+        """Fill the SfM/metric configs from the preset when left unset."""
+        return replace(self, sfm=self.sfm or _sfm_config(self.preset),
+                       metric=self.metric or _metric_config())
+
+
+def preset(name: str) -> PipelineConfig:
+    """Named pipeline presets: `fast` (minutes on 2 CPU cores) and `paper` (30k iterations)."""
+    if name not in ("fast", "paper"):
+        raise ValueError(f"unknown preset {name!r} (fast | paper)")
+    views = SplatViewConfig() if name == "fast" else SplatViewConfig(scale=1.0, every=1)
+    return PipelineConfig(preset=name, recon=recon_preset(name), views=views).resolved()
+
+
+# ----------------------------------------------------------------------------- clips
+
+@dataclass(frozen=True)
+class ClipJob:
+    spec: ClipSpec
+    scene_id: str
+    licence: str
+
+
+def slug(text: str, limit: int = 40) -> str:
+    s = re.sub(r"[^a-z0-9._-]+", "-", text.lower()).strip("-._")
+    return (s or "clip")[:limit].strip("-._") or "clip"
+
+
+def scene_id_for(spec: ClipSpec, stem: str) -> str:
+    """Readable, unique, registry-valid id: <stem>-<sha8>[-<start>s]."""
+    sid = f"{slug(stem)}-{spec.source.sha256[:8]}"
+    if spec.window is not None:
+        sid += f"-{int(round(spec.window[0])):04d}s"
+    return sid
+
+
+def rows_from_inputs(inputs: Sequence[str], licence: str = "unknown",
+                     capture_height: Optional[float] = None) -> list[ManifestRow]:
+    """Manifest files are read; anything else is one source (video, image folder, URI)."""
+    rows: list[ManifestRow] = []
+    for i, item in enumerate(inputs):
+        path = Path(item)
+        if path.suffix.lower() in MANIFEST_SUFFIXES and path.is_file():
+            rows.extend(load_manifest(path))
+        else:
+            rec = {"source": item, "licence": licence}
+            if capture_height:
+                rec["capture_height"] = capture_height
+            rows.append(parse_row(rec, i, Path("."), "command line"))
+    return rows
+
+
+def plan_jobs(rows: Sequence[ManifestRow], conf: PipelineConfig, cache_dir: Optional[Path] = None
+              ) -> tuple[list[ClipJob], list[ClipResult]]:
+    """Resolve sources and cut clips; a source that cannot be read fails alone."""
+    jobs, failed = [], []
+    for row in rows:
+        try:
+            source = resolve_source(row.source, cache_dir, row.sha256) if cache_dir else \
+                resolve_source(row.source, expected_sha256=row.sha256)
+            specs = plan_clips(row, source, conf.clips)
+        except StageError as e:
+            failed.append(ClipResult(row.source, False, e.stage, e.reason, e.detail, {}, {}))
+            continue
+        stem = Path(row.source.split("?")[0].rstrip("/")).name.rsplit(".", 1)[0]
+        jobs.extend(ClipJob(s, scene_id_for(s, stem), row.licence) for s in specs)
+    return jobs, failed
+
+
+# ----------------------------------------------------------------------------- stages
+
+def _threads(ctx: dict) -> int:
+    """Limit torch/numba threads to the CPUs Ray assigned to this task."""
+    import ray
+
+    n = int(ray.get_runtime_context().get_assigned_resources().get("CPU", ctx.get("cpus", 1)) or 1)
+    n = max(1, n)
+    import torch
+
+    torch.set_num_threads(n)
+    try:
+        import numba
+
+        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+    except (ImportError, ValueError):
+        pass
+    os.environ["OMP_NUM_THREADS"] = str(n)
+    return n
+
+
+def _dir(ctx: dict, stage: str) -> Path:
+    return Path(ctx["clip_dir"]) / stage
+
+
+def stage_decode(ctx: dict) -> dict:
+    from vid2sim.factory.ingest import decode
+
+    job: ClipJob = ctx["job"]
+    conf: PipelineConfig = ctx["conf"]
+    workers = _threads(ctx)
+    out = decode.main(replace(conf.decode, workers=workers), job.spec.source, _dir(ctx, "decode"),
+                      job.spec.window)
+    return {"decode_dir": str(out)}
+
+
+def stage_masks(ctx: dict) -> dict:
+    from vid2sim.factory.ingest import masks
+
+    _threads(ctx)
+    out = masks.main(ctx["conf"].masks, Path(ctx["decode_dir"]), _dir(ctx, "masks"))
+    return {"masks_dir": str(out)}
+
+
+def stage_sfm(ctx: dict) -> dict:
+    from vid2sim.factory.sfm import sfm
+
+    _threads(ctx)
+    out = sfm.main(ctx["conf"].resolved().sfm, Path(ctx["decode_dir"]) / "images", Path(ctx["masks_dir"]) / "masks",
+                   _dir(ctx, "sfm"))
+    return {"sfm_dir": str(out)}
+
+
+def stage_metric(ctx: dict) -> dict:
+    from vid2sim.factory.sfm import metric
+
+    _threads(ctx)
+    conf = replace(ctx["conf"].resolved().metric, capture_height_m=ctx["job"].spec.capture_height)
+    out = metric.main(conf, Path(ctx["sfm_dir"]), _dir(ctx, "metric"))
+    return {"posed_dir": str(out)}
+
+
+def stage_recon(ctx: dict) -> dict:
+    from vid2sim.factory.recon import trainer
+
+    _threads(ctx)
+    out = trainer.main(ctx["conf"].recon, Path(ctx["posed_dir"]), _dir(ctx, "recon"))
+    return {"recon_dir": str(out)}
+
+
+def stage_meshing(ctx: dict) -> dict:
+    from vid2sim.factory.geometry import meshing, walkable
+    from vid2sim.factory.sfm.posed import PosedClip
+    from vid2sim.factory.geometry.splat_views import render_views
+    from vid2sim.splats.ply import read_ply
+
+    _threads(ctx)
+    conf: PipelineConfig = ctx["conf"]
+    recon_dir = Path(ctx["recon_dir"])
+    clip = PosedClip.load(Path(ctx["posed_dir"]))
+    recon_key = load_record(recon_dir).key
+    views_key = config_hash(recon_key, conf.views)
+    model = read_ply(recon_dir / "splats.ply")
+    mesh_dir = meshing.main(conf.meshing, render_views(model, clip, conf.views), _dir(ctx, "meshing"),
+                            input_key=views_key)
+    path = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3]
+    walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / "ground_points.npy"),
+                             mesh_dir / "collision.ply", path, _dir(ctx, "walkable"),
+                             input_key=load_record(mesh_dir).key)
+    return {"meshing_dir": str(mesh_dir), "walkable_dir": str(walk_dir)}
+
+
+def stage_bundle(ctx: dict) -> dict:
+    from vid2sim.factory.runtime.bundle_assembly import assemble_bundle
+
+    _threads(ctx)
+    out = assemble_bundle(ctx, _dir(ctx, "bundle"))
+    return {"bundle_dir": str(out)}
+
+
+STAGES: list[tuple[str, Callable[[dict], dict]]] = [
+    ("decode", stage_decode), ("masks", stage_masks), ("sfm", stage_sfm), ("metric", stage_metric),
+    ("recon", stage_recon), ("meshing", stage_meshing), ("bundle", stage_bundle),
+]
+
+
+def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0) -> list[StageSpec]:
+    """The chain; each stage runs against the work store when the context names one."""
+    return [StageSpec(name, OnStore(fn), num_cpus=cpus_per_clip,
+                      num_gpus=gpus_for_recon if name == "recon" else 0.0) for name, fn in STAGES]
+
+
+# ----------------------------------------------------------------------------- run
+
+@dataclass
+class IngestReport:
+    results: list[ClipResult]
+    committed: dict[str, int]  # scene_id -> registry version
+    seconds: float
+
+    def to_json(self) -> dict:
+        return {
+            "seconds": round(self.seconds, 2),
+            "clips": [{"clip": r.clip_id, "ok": r.ok, "scene_id": r.context.get("scene_id"),
+                       "version": self.committed.get(r.context.get("scene_id", "")),
+                       "failed_stage": r.failed_stage or None, "reason": r.reason or None,
+                       "detail": (r.detail or "")[:500] or None,
+                       "stage_seconds": {k: round(v, 2) for k, v in r.seconds.items()}}
+                      for r in self.results],
+        }
+
+
+def clip_context(job: ClipJob, conf: PipelineConfig, cpus: float, workdir: Union[str, Path]) -> dict:
+    """A clip's starting context: a local work folder, or a work store (object-store URI) that
+    every node reads and writes through its own scratch (see runtime/staging.py)."""
+    ctx = {"job": job, "conf": conf, "scene_id": job.scene_id, "cpus": cpus, "clip_id": job.spec.clip_id}
+    if is_remote(str(workdir)):
+        return {**ctx, "work_uri": str(workdir).rstrip("/")}
+    return {**ctx, "clip_dir": str(Path(workdir).resolve() / job.spec.clip_id)}
+
+
+def bundle_path(ctx: dict) -> Path:
+    """The finished bundle as a local folder (fetched from the work store when there is one)."""
+    if ctx.get("work_uri"):
+        return fetch_from_store(ctx["work_uri"], ctx["clip_id"], ctx["bundle_dir"])
+    return Path(ctx["bundle_dir"])
+
+
+def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
+           workdir: Union[str, Path] = Path("vid2sim-work"),
+           conf: Optional[PipelineConfig] = None, ray_address: Optional[str] = None,
+           num_cpus: Optional[int] = None, licence: str = "unknown",
+           capture_height: Optional[float] = None, max_retries: int = 2,
+           on_update: Optional[Callable[[ClipState], None]] = None,
+           on_plan: Optional[Callable[[list[str]], None]] = None) -> IngestReport:
+    """Run every clip of `inputs` through the pipeline and commit finished scenes."""
+    import time
+
+    import ray
+
+    from vid2sim.registry import Registry
+
+    t0 = time.perf_counter()
+    conf = (conf or preset("fast")).resolved()
+    reg = Registry(registry)
+    jobs, failed = plan_jobs(rows_from_inputs(inputs, licence, capture_height), conf)
+    if on_plan:
+        on_plan([j.spec.clip_id for j in jobs] + [f.clip_id for f in failed])
+    ensure_ray(ray_address, num_cpus)
+    total_cpus = int(ray.cluster_resources().get("CPU", 1))
+    cpus = float(max(1, total_cpus // max(1, len(jobs))))
+    gpus = 1.0 if ray.cluster_resources().get("GPU", 0) >= 1 else 0.0
+    clips = [(j.spec.clip_id, clip_context(j, conf, cpus, workdir)) for j in jobs]
+    committed: dict[str, int] = {}
+
+    def commit(state: ClipState) -> None:
+        try:
+            rec = reg.add(bundle_path(state.context))
+        except Exception as e:  # BundleError or storage error: the clip fails, the registry is intact
+            raise StageError("commit", "commit_failed", str(e)) from e
+        committed[rec.scene_id] = rec.version
+
+    results = run_clips(clips, stage_specs(cpus, gpus), max_retries=max_retries, on_update=on_update,
+                        on_clip_done=commit) if clips else []
+    return IngestReport(failed + results, committed, time.perf_counter() - t0)

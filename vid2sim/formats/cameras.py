@@ -1,0 +1,54 @@
+"""cameras.parquet: one row per frame, shared by the factory's PosedClip and the scene bundle.
+
+Columns: index int32, image string (file name), timestamp float64 (s), width/height int32,
+fx fy cx cy float64 (pixels, pinhole), cam_to_world list<float64>[16] (row-major 4x4, OpenCV
+axes: x right, y down, z forward), split string ("train" | "test").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from vid2sim.formats.errors import BundleError
+
+CAMERAS_PARQUET = "cameras.parquet"
+CAMERA_COLUMNS = ("index", "image", "timestamp", "width", "height", "fx", "fy", "cx", "cy",
+                  "cam_to_world", "split")
+
+
+def cameras_schema() -> pa.Schema:
+    """The cameras table schema shared by PosedClip and the scene bundle's cameras.parquet."""
+    return pa.schema([
+        ("index", pa.int32()), ("image", pa.string()), ("timestamp", pa.float64()),
+        ("width", pa.int32()), ("height", pa.int32()),
+        ("fx", pa.float64()), ("fy", pa.float64()), ("cx", pa.float64()), ("cy", pa.float64()),
+        ("cam_to_world", pa.list_(pa.float64(), 16)), ("split", pa.string()),
+    ])
+
+
+def load_cameras(path: Path) -> pa.Table:
+    """cameras.parquet -> pyarrow.Table with exactly `cameras_schema()` columns and types."""
+    if not Path(path).is_file():
+        raise BundleError(path, "missing cameras table")
+    try:
+        table = pq.read_table(path)
+    except Exception as e:
+        raise BundleError(path, f"unreadable parquet ({type(e).__name__}: {e})") from None
+    want = cameras_schema()
+    got = {f.name: f.type for f in table.schema}
+    missing = [f.name for f in want if f.name not in got]
+    wrong = [f"{f.name} is {got[f.name]}, expected {f.type}" for f in want if f.name in got and got[f.name] != f.type]
+    extra = sorted(set(got) - set(want.names))
+    if missing or wrong or extra:
+        parts = ([f"missing columns {missing}"] if missing else []) + wrong + ([f"unknown columns {extra}"] if extra else [])
+        raise BundleError(path, "wrong cameras schema: " + "; ".join(parts))
+    table = table.select(want.names)
+    splits = set(table.column("split").to_pylist())
+    if not splits <= {"train", "test"}:
+        raise BundleError(path, f"split values must be 'train' or 'test', got {sorted(map(str, splits))}")
+    if table.num_rows == 0:
+        raise BundleError(path, "cameras table has no rows")
+    return table
