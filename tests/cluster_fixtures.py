@@ -136,7 +136,8 @@ def ray_env(token: str, scratch: Path, extra: dict[str, str]) -> dict[str, str]:
     env = dict(os.environ)
     env.update(extra)
     env.update({"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": token, "VID2SIM_SCRATCH": str(scratch),
-                "PYTHONPATH": str(PROJECT_ROOT), "RAY_USAGE_STATS_ENABLED": "0",
+                "PYTHONPATH": os.pathsep.join([str(PROJECT_ROOT), str(PROJECT_ROOT / "tests")]),
+                "RAY_USAGE_STATS_ENABLED": "0",
                 "OMP_NUM_THREADS": "1"})
     env.pop("RAY_AUTH_TOKEN_PATH", None)
     return env
