@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 from typing import List, Optional
 
 import typer
@@ -11,7 +10,7 @@ from rich.console import Console
 from rich.table import Table
 
 
-def interrupted_message(states: dict, workdir: Path) -> str:
+def interrupted_message(states: dict, workdir: str) -> str:
     """What an interrupted ingest finished, and how to resume it."""
     done = sorted(c for c, (status, _, _) in states.items() if status == "done")
     failed = sorted(c for c, (status, _, _) in states.items() if status == "failed")
@@ -29,7 +28,9 @@ def ingest_command(
     registry: Optional[str] = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address; default: an embedded local runtime."),
     preset: str = typer.Option("fast", "--preset", help="fast | paper"),
-    workdir: Path = typer.Option(Path("vid2sim-work"), "--workdir", help="Stage outputs (cache; re-runs resume)."),
+    workdir: str = typer.Option("vid2sim-work", "--workdir",
+                                help="Stage outputs (cache; re-runs resume): a folder or an object-store "
+                                     "URI (s3://bucket/work) for clusters without a shared disk."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="CPUs for the embedded Ray runtime (>= 1)."),
     licence: str = typer.Option("unknown", "--licence", help="Licence tag for sources given directly."),
     capture_height: Optional[float] = typer.Option(None, "--capture-height", help="Camera height above ground (m) for direct sources."),

@@ -71,6 +71,33 @@ COMMIT_RE = re.compile(r"(\d{20})\.json")
 MIN_FULL_VACUUM_HOURS = 1  # untracked files younger than this may belong to a commit in flight
 
 
+S3_SCHEMES = ("s3", "s3a")
+UNSAFE_RENAME = "aws_s3_allow_unsafe_rename"
+
+
+def safe_storage_options(uri: str, options: Optional[dict] = None) -> Optional[dict]:
+    """delta-rs storage options that keep concurrent commits safe on `uri`'s store.
+
+    S3 and S3-compatible stores (MinIO, Ceph, moto) have no atomic rename, so a commit must be a
+    conditional put of `_delta_log/<version>.json` (If-None-Match): two committers of the same
+    version cannot both win. We ask for `conditional_put=etag` explicitly (delta-rs 1.6 also
+    defaults to it) unless a DynamoDB lock (`AWS_S3_LOCKING_PROVIDER`) is configured, and refuse
+    `AWS_S3_ALLOW_UNSAFE_RENAME`, which lets two writers overwrite the same log entry.
+    """
+    scheme = uri.split("://", 1)[0].lower() if "://" in uri else ""
+    if scheme not in S3_SCHEMES:
+        return options
+    opts = dict(options or {})
+    keys = {k.lower(): k for k in opts}
+    if str(opts.get(keys.get(UNSAFE_RENAME, ""), "")).lower() == "true":
+        raise ValueError(f"{uri}: AWS_S3_ALLOW_UNSAFE_RENAME loses concurrent commits; "
+                         "use conditional_put=etag (default) or a DynamoDB lock")
+    if "aws_s3_locking_provider" not in keys and "conditional_put" not in keys \
+            and "aws_conditional_put" not in keys:
+        opts["conditional_put"] = "etag"
+    return opts
+
+
 class CommitConflict(RuntimeError):
     """Gave up after too many concurrent-commit conflicts."""
 
@@ -96,7 +123,7 @@ class ManifestTable:
     """Delta table wrapper: create-if-missing, snapshot reads (with time travel), safe appends."""
 
     def __init__(self, uri: str, storage_options: Optional[dict] = None, auto_compact_files: int = 0) -> None:
-        self.uri, self.storage_options = uri, storage_options
+        self.uri, self.storage_options = uri, safe_storage_options(uri, storage_options)
         self.auto_compact_files = auto_compact_files  # 0 = never compact automatically
         self._dt = None
         self._cache: tuple[int, pa.Table] | None = None

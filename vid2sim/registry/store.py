@@ -13,9 +13,10 @@ version keeps working until then.
 
 Roots: a plain path or `file://` URI (tested), or an object-store URI (s3://, gs://, az://...):
 blobs then go through pyarrow/fsspec filesystems and the manifest through delta-rs with
-`storage_options`. On S3, safe concurrent commits need delta-rs's conditional-put or locking
-options. `memory://` works for the blob store but not for the manifest (delta-rs's in-memory
-store is private to one table handle).
+`storage_options`. On S3, concurrent commits are made safe by delta-rs's conditional put
+(`conditional_put=etag`, set by default; see manifest.safe_storage_options). `memory://` works
+for the blob store but not for the manifest (delta-rs's in-memory store is private to one table
+handle).
 """
 
 from __future__ import annotations

@@ -1,6 +1,7 @@
 """The factory pipeline: clips -> stages (Ray tasks) -> scene bundles -> registry.
 
-Per clip, in `workdir/<clip_id>/`:
+Per clip, in `workdir/<clip_id>/` (a local folder, or an object-store URI: then each stage runs
+in its node's scratch and syncs with the store, see runtime/staging.py):
   decode/  masks/  sfm/  metric/  recon/  meshing/  walkable/  bundle/
 Each folder is a stage output with its `stage.json` marker (config + input hash), so a
 re-run resumes after the last finished stage. The finished bundle is committed to the
@@ -15,7 +16,7 @@ import os
 import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence, Union
 
 import numpy as np
 
@@ -28,6 +29,8 @@ from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpe
 from vid2sim.factory.evaluation.corridor import CorridorConfig, corridor_check, gate_reasons
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.config import preset as recon_preset
+from vid2sim.factory.runtime.object_store import is_remote
+from vid2sim.factory.runtime.staging import OnStore, fetch_from_store
 from vid2sim.factory.ingest.sources import redact_uri, resolve_source
 from vid2sim.factory.geometry.splat_views import SplatViewConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
@@ -264,7 +267,8 @@ STAGES: list[tuple[str, Callable[[dict], dict]]] = [
 
 
 def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0) -> list[StageSpec]:
-    return [StageSpec(name, fn, num_cpus=cpus_per_clip,
+    """The chain; each stage runs against the work store when the context names one."""
+    return [StageSpec(name, OnStore(fn), num_cpus=cpus_per_clip,
                       num_gpus=gpus_for_recon if name == "recon" else 0.0) for name, fn in STAGES]
 
 
@@ -288,7 +292,24 @@ class IngestReport:
         }
 
 
-def ingest(inputs: Sequence[str], registry: Optional[str] = None, *, workdir: Path = Path("vid2sim-work"),
+def clip_context(job: ClipJob, conf: PipelineConfig, cpus: float, workdir: Union[str, Path]) -> dict:
+    """A clip's starting context: a local work folder, or a work store (object-store URI) that
+    every node reads and writes through its own scratch (see runtime/staging.py)."""
+    ctx = {"job": job, "conf": conf, "scene_id": job.scene_id, "cpus": cpus, "clip_id": job.spec.clip_id}
+    if is_remote(str(workdir)):
+        return {**ctx, "work_uri": str(workdir).rstrip("/")}
+    return {**ctx, "clip_dir": str(Path(workdir).resolve() / job.spec.clip_id)}
+
+
+def bundle_path(ctx: dict) -> Path:
+    """The finished bundle as a local folder (fetched from the work store when there is one)."""
+    if ctx.get("work_uri"):
+        return fetch_from_store(ctx["work_uri"], ctx["clip_id"], ctx["bundle_dir"])
+    return Path(ctx["bundle_dir"])
+
+
+def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
+           workdir: Union[str, Path] = Path("vid2sim-work"),
            conf: Optional[PipelineConfig] = None, ray_address: Optional[str] = None,
            num_cpus: Optional[int] = None, licence: str = "unknown",
            capture_height: Optional[float] = None, max_retries: int = 2,
@@ -311,14 +332,12 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *, workdir: Pa
     total_cpus = int(ray.cluster_resources().get("CPU", 1))
     cpus = float(max(1, total_cpus // max(1, len(jobs))))
     gpus = 1.0 if ray.cluster_resources().get("GPU", 0) >= 1 else 0.0
-    workdir = Path(workdir).resolve()
-    clips = [(j.spec.clip_id, {"job": j, "conf": conf, "scene_id": j.scene_id, "cpus": cpus,
-                               "clip_dir": str(workdir / j.spec.clip_id)}) for j in jobs]
+    clips = [(j.spec.clip_id, clip_context(j, conf, cpus, workdir)) for j in jobs]
     committed: dict[str, int] = {}
 
     def commit(state: ClipState) -> None:
         try:
-            rec = reg.add(state.context["bundle_dir"])
+            rec = reg.add(bundle_path(state.context))
         except Exception as e:  # BundleError or storage error: the clip fails, the registry is intact
             raise StageError("commit", "commit_failed", str(e)) from e
         committed[rec.scene_id] = rec.version

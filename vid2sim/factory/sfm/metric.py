@@ -275,6 +275,8 @@ def load_sfm(sfm_dir: Path) -> tuple[Any, Path, Optional[Path], dict]:
     if not (und / "sparse").is_dir():
         raise StageError(STAGE, "missing_input", f"{sfm_dir} has no undistorted/sparse model")
     quality = json.loads((Path(sfm_dir) / "quality.json").read_text())
+    if quality.get("images_dir"):  # relative to the SfM folder (absolute in older outputs)
+        quality["images_dir"] = str(Path(sfm_dir) / quality["images_dir"])
     masks = und / "masks" if (und / "masks").is_dir() else None
     return pycolmap.Reconstruction(str(und / "sparse")), und / "images", masks, quality
 

@@ -96,7 +96,7 @@ class SfMQuality:
     camera_model: str = ""
     camera_params: list[float] = field(default_factory=list)
     seconds: dict[str, float] = field(default_factory=dict)
-    images_dir: str = ""  # the input frames (the metric stage finds timestamps beside them)
+    images_dir: str = ""  # the input frames, relative to the SfM folder (metric finds timestamps beside them)
     failed: str = ""
 
 
@@ -370,7 +370,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     if is_done(out_dir, key):
         return out_dir
     fresh_dir(out_dir)
-    q = SfMQuality(num_frames=len(names), images_dir=str(images_dir.resolve()))
+    q = SfMQuality(num_frames=len(names), images_dir=os.path.relpath(images_dir.resolve(), out_dir.resolve()))
     if len(names) < conf.min_frames:
         raise fail(out_dir, q, "too_few_frames",
                    f"{images_dir} has {len(names)} frames, need >= {conf.min_frames}")
