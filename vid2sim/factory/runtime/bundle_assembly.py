@@ -27,6 +27,10 @@ from vid2sim.formats.bundle import write_bundle
 from vid2sim.formats.errors import BundleError
 from vid2sim.formats.scene import make_scene_json
 from vid2sim.formats.walkable import load_walkable
+from vid2sim.splats.camera import Camera
+from vid2sim.splats.ply import read_ply
+from vid2sim.splats.render import render
+from vid2sim.splats.types import RasterSettings
 
 STAGE = "bundle"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
@@ -55,11 +59,6 @@ def _scalars(d: dict, prefix: str = "") -> dict:
 def render_preview(splats_ply: Path, clip: PosedClip, walkable: np.ndarray, out_png: Path,
                    width: int = 480) -> Path:
     """Preview: the splats rendered from the middle training frame, beside the walkable map."""
-    from vid2sim.splats.camera import Camera
-    from vid2sim.splats.ply import read_ply
-    from vid2sim.splats.render import render
-    from vid2sim.splats.types import RasterSettings
-
     model = read_ply(splats_ply)
     train = clip.split("train") or clip.frames
     frame = train[len(train) // 2]
