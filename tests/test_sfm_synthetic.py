@@ -3,13 +3,15 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vid2sim.factory.ingest import decode
-
 from vid2sim.factory.sfm import metric, sfm
 from vid2sim.factory.evaluation.poses import evaluate, load_posed_clip
 from vid2sim.factory.synthetic import generate_street, render_video
 from vid2sim.factory.synthetic import preset as street_preset
+
+pytestmark = pytest.mark.slow  # renders a street and runs SfM (over a minute)
 
 
 def test_synthetic_street_metric_poses(tmp_path):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import List, Optional
 
 import typer
@@ -28,6 +29,7 @@ def ingest_command(
     registry: Optional[str] = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address; default: an embedded local runtime."),
     preset: str = typer.Option("fast", "--preset", help="fast | paper"),
+    config: Optional[Path] = typer.Option(None, "--config", help="PipelineConfig JSON (e.g. a scene.json's pipeline.config); overrides --preset."),
     workdir: str = typer.Option("vid2sim-work", "--workdir",
                                 help="Stage outputs (cache; re-runs resume): a folder or an object-store "
                                      "URI (s3://bucket/work) for clusters without a shared disk."),
@@ -37,14 +39,14 @@ def ingest_command(
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Turn videos into registered, simulation-ready scenes (each clip's stages run as Ray tasks)."""
-    from vid2sim.factory.runtime.pipeline import STAGES, ingest, preset as make_preset
+    from vid2sim.factory.runtime.pipeline import STAGES, PipelineConfig, ingest, preset as make_preset
     from vid2sim.factory.runtime.progress import IngestProgress
     from vid2sim.factory.runtime.stage_cache import StageError
 
     console = Console(stderr=True)
     try:
-        conf = make_preset(preset)
-    except ValueError as e:
+        conf = PipelineConfig.load(config) if config else make_preset(preset)
+    except (ValueError, TypeError, OSError) as e:
         console.print(f"[red]error:[/red] {e}")
         raise typer.Exit(2)
     holder: dict = {}

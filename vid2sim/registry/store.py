@@ -38,7 +38,7 @@ from vid2sim.registry.blobs import ArrowBlobStore, BlobStore, LocalBlobStore, ar
 from vid2sim.formats.bundle import BundleInfo, validate_bundle
 from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
 from vid2sim.registry.errors import HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
-from vid2sim.registry.manifest import AsOf, ManifestTable, now_utc
+from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS, AsOf, ManifestTable, now_utc
 from vid2sim.registry.query import QueryError, QueryLimits, run_query
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
                                       records)
@@ -457,8 +457,6 @@ class Registry:
         """
         metrics = self._compact_retrying()  # non-destructive: always runs
         if vacuum_hours is not None:
-            from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS
-
             metrics["vacuumed"] = self.manifest.vacuum(vacuum_hours, dry_run=dry_run,
                                                        full=vacuum_hours >= MIN_FULL_VACUUM_HOURS)
         return metrics

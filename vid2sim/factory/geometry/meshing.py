@@ -49,6 +49,19 @@ from vid2sim.versioning import to_jsonable
 STAGE = "meshing"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
+@dataclass(frozen=True)
+class MeshingOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    collision: str = "collision.ply"  # ground removed
+    visual: str = "visual_mesh.ply"  # with the ground, vertex colours
+    ground_points: str = "ground_points.npy"  # [N, 3] float32
+    summary: str = "meshing.json"
+
+
+OUTPUTS = MeshingOutputs()
+
+
 
 class MeshingError(StageError):
     """Bad input to (or empty output of) the meshing stage."""
@@ -384,10 +397,10 @@ def main(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path,
     with Timer() as t:
         res = build_meshes(views, conf)
     fresh_dir(out_dir)
-    save_mesh(res.collision, out_dir / "collision.ply")
-    save_mesh(res.visual, out_dir / "visual_mesh.ply")
-    np.save(out_dir / "ground_points.npy", res.ground_points.astype(np.float32))
-    (out_dir / "meshing.json").write_text(json.dumps(
+    save_mesh(res.collision, out_dir / OUTPUTS.collision)
+    save_mesh(res.visual, out_dir / OUTPUTS.visual)
+    np.save(out_dir / OUTPUTS.ground_points, res.ground_points.astype(np.float32))
+    (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": res.summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, res.summary, t.seconds)
     return out_dir

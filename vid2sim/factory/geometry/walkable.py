@@ -43,6 +43,17 @@ from vid2sim.versioning import to_jsonable
 STAGE = "walkable"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
+@dataclass(frozen=True)
+class WalkableOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    grid: str = WALKABLE_NPZ  # vid2sim.formats.walkable
+    summary: str = "walkable.json"
+
+
+OUTPUTS = WalkableOutputs()
+
+
 
 class WalkableError(StageError):
     """Bad input to the walkable-map stage, or a map that cannot hold the camera path."""
@@ -285,10 +296,10 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     with Timer() as t:
         wm = walkable_map(ground_points, mesh, camera_path, conf)
     fresh_dir(out_dir)
-    wm.save(out_dir / WALKABLE_NPZ)
+    wm.save(out_dir / OUTPUTS.grid)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
                    walkable_area_m2=round(wm.area_m2(), 3))
-    (out_dir / "walkable.json").write_text(json.dumps(
+    (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, summary, t.seconds)
     return out_dir

@@ -9,7 +9,7 @@ Writes into `out_dir`:
                      reason (null | black | blur | duplicate), faces
   clip.json          source uri + sha256, window, source fps/size, sample fps, size,
                      counts, face-detector facts, config
-  stage.json         the done-marker (stage.py)
+  stage.json         the done-marker (runtime/stage_cache.py)
 
 Filters (defaults, see DecodeConfig):
   sampling   10 fps (the paper uses 30 fps x 15 s = 450 frames; 10 fps keeps 1/3 of the
@@ -47,6 +47,18 @@ from vid2sim.versioning import to_jsonable
 STAGE = "decode"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
+@dataclass(frozen=True)
+class DecodeOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    images: str = "images"  # NNNNNN.jpg, faces blurred
+    frames: str = "frames.parquet"  # one row per sampled frame
+    clip: str = "clip.json"
+
+
+OUTPUTS = DecodeOutputs()
+
+
 
 @dataclass(frozen=True)
 class DecodeConfig:
@@ -66,10 +78,16 @@ class DecodeConfig:
 
 
 PRESETS = {
-    "default": DecodeConfig(),
-    "paper": DecodeConfig(fps=30.0, max_side=1920),  # 30 fps, as in the paper
-    "fast": DecodeConfig(fps=5.0, max_side=768, faces=FaceConfig(upsample=0)),
+    "default": DecodeConfig(),  # the pipeline's `fast` preset
+    "paper": DecodeConfig(fps=30.0, max_side=1920),  # 30 fps, as in the paper (pipeline `paper`)
 }
+
+
+def preset(name: str) -> DecodeConfig:
+    """A named sampling preset (`default` 10 fps, `paper` 30 fps)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown decode preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name]
 
 
 @dataclass
@@ -232,7 +250,7 @@ def _blur_and_write(job: tuple[np.ndarray, str]) -> int:
 
 def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int, int]:
     """Blur faces in memory and write kept frames (in `conf.workers` processes); faces per sample."""
-    images = out_dir / "images"
+    images = out_dir / OUTPUTS.images
     images.mkdir()
     kept = [i for i, s in enumerate(samples) if s.reason is None]
     jobs = [(samples[i].image, str(images / f"{k:06d}.jpg")) for k, i in enumerate(kept)]
@@ -264,7 +282,7 @@ def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
         counts = filter_samples(samples, conf)
         fresh_dir(out_dir)
         faces = _write(samples, conf, out_dir)
-        pq.write_table(_frames_table(samples, faces), out_dir / "frames.parquet")
+        pq.write_table(_frames_table(samples, faces), out_dir / OUTPUTS.frames)
         kept = [s for s in samples if s.reason is None]
         h, w = kept[0].image.shape[:2]
         counts["faces_blurred"] = int(sum(faces.values()))
@@ -272,7 +290,7 @@ def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
         clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
                 "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
                 **facts, "counts": counts, "face_detector": blurrer.name, "config": to_jsonable(conf)}
-        (out_dir / "clip.json").write_text(json.dumps(to_jsonable(clip), indent=2))
+        (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
     summary = {k: counts[k] for k in ("sampled", "kept", "dropped_black", "dropped_blur", "dropped_duplicate",
                                       "faces_blurred")}
     mark_done(out_dir, STAGE, key, {**summary, "size": [w, h]}, timer.seconds)
@@ -281,4 +299,4 @@ def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
 
 def kept_images(out_dir: Path) -> list[Path]:
     """The written frames of a finished decode output, in order."""
-    return sorted((Path(out_dir) / "images").glob("*.jpg"))
+    return sorted((Path(out_dir) / OUTPUTS.images).glob("*.jpg"))

@@ -38,10 +38,22 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vid2sim.factory.ingest.decode import kept_images
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "masks"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+@dataclass(frozen=True)
+class MasksOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    masks: str = "masks"  # <image>.png, 0 = dynamic (COLMAP)
+    table: str = "masks.parquet"
+
+
+OUTPUTS = MasksOutputs()
+
 
 
 @dataclass(frozen=True)
@@ -59,13 +71,6 @@ class MasksConfig:
     segmenter_path: Optional[str] = None  # TorchScript learned segmenter (local file)
     segmenter_classes: tuple[int, ...] = (1,)  # output classes that are people / vehicles
     segment_min_motion: float = 0.1  # a segment is masked when this fraction of it moves
-
-
-PRESETS = {
-    "default": MasksConfig(),
-    "strict": MasksConfig(residual_px=0.7, residual_rel=3.0, dilate_px=11),  # mask more
-    "lenient": MasksConfig(residual_px=1.5, residual_rel=6.0, dilate_px=5),  # mask less
-}
 
 
 class Segmenter(Protocol):
@@ -297,7 +302,7 @@ def main(conf: MasksConfig, decode_dir: Path, out_dir: Path, segmenter: Optional
     rec = load_record(decode_dir)
     if rec is None:
         raise StageError(STAGE, "missing_input", f"{decode_dir}: no finished decode output (stage.json)")
-    files = sorted((decode_dir / "images").glob("*.jpg"))
+    files = kept_images(decode_dir)
     if len(files) < 2:
         raise StageError(STAGE, "too_few_frames", f"{decode_dir}: {len(files)} images")
     seg_id = conf.segmenter_path or (type(segmenter).__name__ if segmenter is not None else None)
@@ -309,9 +314,9 @@ def main(conf: MasksConfig, decode_dir: Path, out_dir: Path, segmenter: Optional
         images = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in files]
         masks, facts = compute_masks(images, conf, segmenter)
         fresh_dir(out_dir)
-        (out_dir / "masks").mkdir()
+        (out_dir / OUTPUTS.masks).mkdir()
         for p, m in zip(files, masks):
-            cv2.imwrite(str(out_dir / "masks" / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
+            cv2.imwrite(str(out_dir / OUTPUTS.masks / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
         table = pa.Table.from_pylist([{"image": p.name, **f} for p, f in zip(files, facts)])
         pq.write_table(table, out_dir / "masks.parquet")
     frac = np.array([f["dynamic_fraction"] for f in facts])

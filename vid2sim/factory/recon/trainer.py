@@ -1,4 +1,4 @@
-"""Stage `reconstruct`: geometry-consistent Gaussian-splat training of one PosedClip.
+"""Stage `recon`: geometry-consistent Gaussian-splat training of one PosedClip.
 
 main(conf, posed_clip_dir, out_dir) -> out_dir
 Reads:  a PosedClip folder (cameras.parquet, points.npz, frame.json, images, masks).
@@ -23,7 +23,7 @@ import torch
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import losses as L
 from vid2sim.factory.recon.config import ReconConfig
-from vid2sim.factory.recon.data import STAGE, View, load_views, scene_extent
+from vid2sim.factory.recon.data import STAGE, STAGE_VERSION, View, load_views, scene_extent
 from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune_only, reset_opacity
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths

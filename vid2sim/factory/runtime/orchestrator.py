@@ -3,7 +3,7 @@
 The driver keeps one state machine per clip: when a clip's stage finishes, its
 next stage is submitted; `ray.wait` multiplexes all clips, so clips advance
 independently and a clip that fails stops alone. Stage outputs are cached by
-the stage itself (see `stage.py`), so a re-run resumes after the last finished
+the stage itself (see `stage_cache.py`), so a re-run resumes after the last finished
 stage. Ray retries a task whose worker died (`max_retries`); a StageError is a
 verdict about the input and is not retried.
 """

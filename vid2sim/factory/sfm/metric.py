@@ -346,9 +346,9 @@ def apply_sim3(rec: Any, s: float, R: np.ndarray, t: np.ndarray) -> None:
 
 
 def posed_clip(conf: MetricConfig, rec: Any, images: Path, masks: Optional[Path],
-               quality: dict, facts: dict) -> PosedClip:
+               frames_dir: str, facts: dict) -> PosedClip:
     names, c2w = camera_arrays(rec)
-    index, ts, ts_source = timestamps(quality.get("images_dir", ""), names, conf.fallback_fps)
+    index, ts, ts_source = timestamps(frames_dir, names, conf.fallback_fps)
     split = holdout_split(len(names), conf.holdout_every)
     cam = next(iter(rec.cameras.values()))
     K = cam.calibration_matrix()
@@ -362,8 +362,13 @@ def posed_clip(conf: MetricConfig, rec: Any, images: Path, masks: Optional[Path]
     return PosedClip(frames, images, masks, xyz, rgb, info)
 
 
-def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path) -> Path:
-    """Align an SfM output to the metric gravity frame and save a PosedClip in `out_dir`."""
+def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path, frames_dir: Optional[Path] = None) -> Path:
+    """Align an SfM output to the metric gravity frame and save a PosedClip in `out_dir`.
+
+    frames_dir: the SfM input frames (decode's `images/`, with `frames.parquet` beside it) for
+    frame indices and timestamps; the pipeline passes it. Left out (a standalone SfM folder), the
+    folder recorded in the sfm `quality.json` is used.
+    """
     sfm_dir, out_dir = Path(sfm_dir), Path(out_dir)
     rec_in = load_record(sfm_dir)
     if rec_in is None:
@@ -376,7 +381,7 @@ def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path) -> Path:
         s, R, t, facts = align(conf, rec, masks)
         fresh_dir(out_dir)
         apply_sim3(rec, s, R, t)
-        clip = posed_clip(conf, rec, images, masks, quality, facts)
+        clip = posed_clip(conf, rec, images, masks, str(frames_dir or quality.get("images_dir", "")), facts)
         clip.save(out_dir)
         write_colmap(rec, out_dir / "sparse")
         mask_names = {p.name[:-4] for p in masks.glob("*.png")} if masks else None
