@@ -111,7 +111,10 @@ def case_log_garbled(root: Path, ctx: dict) -> str:
 
 
 def case_data_file_deleted(root: Path, ctx: dict) -> str:
-    sorted((root / "manifests").glob("*.parquet"))[-1].unlink()
+    from deltalake import DeltaTable
+
+    active = sorted(DeltaTable(str(root / "manifests")).file_uris())  # one the snapshot needs
+    Path(active[0].removeprefix("file://")).unlink()
     return read_then_gc(root)
 
 
@@ -214,7 +217,7 @@ CASES: dict[str, Callable[[Path, dict], str]] = {
     "middle log file truncated to 0 B": case_log_truncated,
     "middle log file deleted": case_log_file_deleted,
     "log file garbled": case_log_garbled,
-    "manifest data file deleted": case_data_file_deleted,
+    "active manifest data file deleted": case_data_file_deleted,
     "blob nothing references": case_stray_blob,
     "add killed before commit": case_killed_add,
     "corrupt blob, same bundle re-added": case_corrupt_then_readd,
