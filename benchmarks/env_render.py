@@ -132,7 +132,7 @@ def phases(scene: StaticScene, cams: list, st: RasterSettings, cap: int, tile: i
         off, inst, _, _ = _sort_and_bin_serial(fo, box, n, tile, tx, nt, False)
         t3 = time.process_time()
         blends += composite_frame(fo, box, off, inst, W, H, tile, cap, t_stop, color, alpha, depth, bl,
-                                  np.zeros(0, np.float64), (fo, sel, scene.means, scene.sh, deg, campos))
+                                  np.zeros(0, np.float64))
         t4 = time.process_time()
         for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
             t[key] += dt

@@ -27,7 +27,7 @@ from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
 from .preprocess import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
 from .raster import A_MAX, A_MIN, HALF, ONE, S_MAX, T_MIN, ZERO
-from .static_kernels import _static_one, cull_cells, static_color
+from .static_kernels import _static_one, cull_cells
 
 F32 = np.float32
 # stats columns written per frame
@@ -38,13 +38,12 @@ NS = 4
 @njit(cache=True)
 def project_serial(sel, n, means, cov, opacity, cut, normal_w, rgb, sh, deg, view, campos, cam,
                    width, height, near, far, cov_alpha, fo, box, radii):
-    """project_static in one thread: rows r < n of fo [R, NF], box [R, 4], radii [R]; env
-    mode: no normals, SH colours deferred to the first blend (hidden splats never pay)."""
+    """project_static in one thread: rows r < n of fo [R, NF], box [R, 4], radii [R]."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     for r in range(n):
         _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos,
-                    cam, lims, width, height, near, far, cov_alpha, fo, box, radii, True)
+                    cam, lims, width, height, near, far, cov_alpha, fo, box, radii)
 
 
 @njit(cache=True)
@@ -69,17 +68,8 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
 
 
 @njit(cache=True)
-def _lazy_color(row, lazy):
-    """Colour of fo row `row`, evaluating its deferred SH once (see project_serial)."""
-    fo, sel, means, sh, deg, campos = lazy
-    if fo[row, F_R] < 0.0:
-        static_color(row, sel[row], means, sh, deg, campos, fo)
-    return fo[row, F_R], fo[row, F_G], fo[row, F_BL]
-
-
-@njit(cache=True)
 def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
-                   rlive, color, alpha, depth, blends_px, contrib, lazy):
+                   rlive, color, alpha, depth, blends_px, contrib):
     """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
 
     T [P], acc [P, 4], cnt [P], live [P], rlive [tile rows] are scratch; writes color
@@ -87,8 +77,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
     [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
     blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
     pixel once its transmittance falls below t_stop (colour error <= t_stop). Returns the
-    number of blends. lazy = (fo, sel, means, sh, deg, campos): colours still marked -1
-    (deferred SH) are computed at the splat's first blend and kept in fo for other tiles."""
+    number of blends."""
     tw = x1 - x0
     npx = tw * (y1 - y0)
     for p in range(npx):
@@ -135,8 +124,6 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
                     rlive[py - y0] -= 1
                     n_live -= 1
                     continue
-                if c0 < ZERO:
-                    c0, c1, c2 = _lazy_color(inst[s + k], lazy)
                 w = al * Tp
                 a = acc[p]
                 a[0] += w * c0
@@ -169,9 +156,8 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
 
 @njit(cache=True)
 def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color, alpha,
-                    depth, blends_px, contrib, lazy):
-    """Composite every tile of one frame in this thread; returns the number of blends.
-    lazy: (fo, sel, means, sh, deg, campos) for deferred SH colours (composite_tile)."""
+                    depth, blends_px, contrib):
+    """Composite every tile of one frame in this thread; returns the number of blends."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     cap = 1
@@ -194,7 +180,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
         x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
         _gather_tile(fo, box, inst, s, n, g, gb)
         blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
-                                 live, rlive, color, alpha, depth, blends_px, contrib, lazy)
+                                 live, rlive, color, alpha, depth, blends_px, contrib)
     return blends
 
 
@@ -226,8 +212,7 @@ def render_frame(c0, c1, centers, r_means, rho, cell_start, means, cov, opacity,
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     offsets, inst, _, _ = _sort_and_bin_serial(fo, box, n, tile, tiles_x, n_tiles, False)
     blends = composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color,
-                             out_alpha, out_depth, blends_px, contrib,
-                             (fo, sel, means, sh, deg, campos))
+                             out_alpha, out_depth, blends_px, contrib)
     finish_env(color, out_alpha, out_depth, bg, out_rgb, out_depth)
     in_view = 0
     for r in range(n):

@@ -74,9 +74,8 @@ def _set_empty(box, r):
 
 @njit(cache=True, inline="always")
 def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos, cam,
-                lims, width, height, near, far, cov_alpha, fo, box, radii, env=False):
-    """project_static for row r. env: no normal, and SH colours (deg > 0) deferred to the
-    first blend (fo[r, F_R] = -1 marks them; see static_color)."""
+                lims, width, height, near, far, cov_alpha, fo, box, radii):
+    """project_static for row r."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lxp, lxn, lyp, lyn = lims
     i = sel[r]
@@ -134,12 +133,13 @@ def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
         fo[r, F_R] = rgb[i, 0]
         fo[r, F_G] = rgb[i, 1]
         fo[r, F_BL] = rgb[i, 2]
-    elif env:
-        fo[r, F_R] = -1.0
     else:
-        static_color(r, i, means, sh, deg, campos, fo)
-    if env:
-        return
+        vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
+        vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
+        fo[r, F_R] = max(cr, 0.0)
+        fo[r, F_G] = max(cg, 0.0)
+        fo[r, F_BL] = max(cb, 0.0)
     nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
     cnx = W[0] * nx + W[1] * ny + W[2] * nz
     cny = W[3] * nx + W[4] * ny + W[5] * nz
@@ -148,17 +148,6 @@ def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
     fo[r, F_NX] = f * cnx
     fo[r, F_NY] = f * cny
     fo[r, F_NZ] = f * cnz
-
-
-@njit(cache=True, inline="always")
-def static_color(r, i, means, sh, deg, campos, fo):
-    """SH colour (clamped at 0) of Gaussian i seen from campos into fo[r] (deg > 0)."""
-    vx, vy, vz = means[i, 0] - campos[0], means[i, 1] - campos[1], means[i, 2] - campos[2]
-    vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-    cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
-    fo[r, F_R] = max(cr, 0.0)
-    fo[r, F_G] = max(cg, 0.0)
-    fo[r, F_BL] = max(cb, 0.0)
 
 
 @njit(parallel=True, cache=True)
