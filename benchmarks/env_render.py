@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/env_render.py [--scenes demo gopro] [--poses 16] [--reps 3]
     .venv/bin/python benchmarks/env_render.py --scenes synthetic   # proxy, no factory scene
+    .venv/bin/python benchmarks/env_render.py --scenes PATH/TO/BUNDLE   # any scene bundle folder
 
 Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
 street; the shared GoPro MAX sidewalk clip when ../shared/data is there). Cameras: robot
@@ -162,7 +163,7 @@ def load_scene(name: str, args: argparse.Namespace) -> tuple | None:
         train = robot_cameras(np.stack([rng.uniform(-55, 55, 256), rng.uniform(-2, 2, 256)], 1),
                               rng.uniform(-np.pi, np.pi, 256))
         return model, cams, train, f"synthetic street proxy (NOT a factory scene), {model.num:,} splats"
-    bundle = build(name)
+    bundle = Path(name) if (Path(name) / "scene.json").is_file() else build(name)
     if bundle is None:
         return None
     model = read_ply(bundle / "splats.ply")
