@@ -1,6 +1,8 @@
 """Env render benchmark on real factory scenes: what the robot's 128x72 camera costs.
 
     .venv/bin/python benchmarks/env_render.py [--scenes demo gopro] [--poses 16] [--reps 3]
+    .venv/bin/python benchmarks/env_render.py --scenes synthetic   # proxy, no factory scene
+    .venv/bin/python benchmarks/env_render.py --scenes PATH/TO/BUNDLE   # any scene bundle folder
 
 Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
 street; the shared GoPro MAX sidewalk clip when ../shared/data is there). Cameras: robot
@@ -41,6 +43,7 @@ from vid2sim.splats.cpu.function import camera_arrays  # noqa: E402
 from vid2sim.splats.cpu.preprocess import NF  # noqa: E402
 from vid2sim.splats.cpu.simready import (SimReadyConfig, robot_cameras, sim_ready)  # noqa: E402
 from vid2sim.splats.cpu.static_kernels import cull_cells  # noqa: E402
+from vid2sim.splats.cpu.synthetic import street_scene  # noqa: E402
 
 W, H = 128, 72
 
@@ -98,7 +101,7 @@ def fps_line(label: str, fn, frames: int, reps: int) -> float:
     w2, _ = timed(fn, reps)
     numba.set_num_threads(1)
     n = frames * reps
-    print(f"  {label:<44} 1 thread {n / w1:7.1f} fps ({n / c1:7.1f} per CPU-s)   "
+    print(f"  {label:<48} 1 thread {n / w1:7.1f} fps ({n / c1:7.1f} per CPU-s)   "
           f"2 threads {n / w2:7.1f} fps")
     return n / c1
 
@@ -148,17 +151,36 @@ def print_phases(label: str, p: dict) -> None:
           f"{p['in_view']:,.0f}; blended splats per covered pixel {p['blends_px']:.1f}")
 
 
-def bench_scene(name: str, args: argparse.Namespace) -> None:
-    bundle = build(name)
+def load_scene(name: str, args: argparse.Namespace) -> tuple | None:
+    """(model, benchmark cameras, sim-ready cameras, title) of a factory scene, or of the
+    synthetic street proxy ('synthetic': NOT a factory scene, for when none is built)."""
+    if name == "synthetic":
+        model = street_scene(args.synthetic_splats, seed=4)
+        rng = np.random.default_rng(1)
+        xs = np.linspace(-50.0, 50.0, args.poses)
+        cams = robot_cameras(np.stack([xs, np.zeros_like(xs)], 1),
+                             np.deg2rad(np.resize([0.0, 25.0, -25.0], args.poses)))
+        train = robot_cameras(np.stack([rng.uniform(-55, 55, 256), rng.uniform(-2, 2, 256)], 1),
+                              rng.uniform(-np.pi, np.pi, 256))
+        return model, cams, train, f"synthetic street proxy (NOT a factory scene), {model.num:,} splats"
+    bundle = Path(name) if (Path(name) / "scene.json").is_file() else build(name)
     if bundle is None:
-        return
+        return None
     model = read_ply(bundle / "splats.ply")
     grid = load_walkable(bundle / "walkable.npz")
-    xy, yaw = path_poses(bundle, grid, args.poses)
-    cams = robot_cameras(xy, yaw)
+    cams = robot_cameras(*path_poses(bundle, grid, args.poses))
+    train = robot_cameras(*random_poses(grid, 256, seed=1))
+    return model, cams, train, f"{name}: {bundle}, walkable {grid.area_m2():.0f} m^2"
+
+
+def bench_scene(name: str, args: argparse.Namespace) -> None:
+    loaded = load_scene(name, args)
+    if loaded is None:
+        return
+    model, cams, train, title = loaded
     st = RasterSettings(W, H, active_sh_degree=model.sh_degree)
-    print(f"\n## {name}: {bundle}\n  {model.num:,} splats (SH {model.sh_degree}), walkable "
-          f"{grid.area_m2():.0f} m^2, {len(cams)} robot poses, 0.6 m, 128x72, 90 deg fov")
+    print(f"\n## {title}\n  {model.num:,} splats (SH {model.sh_degree}), {len(cams)} robot "
+          f"poses, 0.6 m, 128x72, 90 deg fov")
     full = StaticScene(model)
     exact = [full.render(c, st).rgb for c in cams]
     fps_line("before: StaticScene.render, exact", lambda: [full.render(c, st) for c in cams],
@@ -169,29 +191,39 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
     before = fps_line("frame kernel, 8 cameras per call, exact",
                       lambda: [batch.render(cams[i:i + 8], settings=st) for i in range(0, len(cams), 8)],
                       len(cams), args.reps)
+    phases(full, cams[:1], st, 0, 16)  # compile the serial kernels outside the timing
     print_phases("exact", phases(full, cams, st, 0, 16))
-    t0 = time.perf_counter()
-    rxy, ryaw = random_poses(grid, 256, seed=1)
-    variants = []
+    variants = [("full", full)]
     for mass in args.keep_mass:
-        small, _ = sim_ready(model, robot_cameras(rxy, ryaw), SimReadyConfig(keep_mass=mass), st)
+        t0 = time.perf_counter()
+        small, _ = sim_ready(model, train, SimReadyConfig(keep_mass=mass), st)
         print(f"  sim-ready keep_mass {mass}: {small.num:,} splats "
               f"({small.num / model.num:.0%}), made in {time.perf_counter() - t0:.1f} s")
         variants.append((f"sim-ready {mass}", StaticScene(small)))
     for label, scene in variants:
-        for cap in args.caps:
-            for deg in sorted({0, model.sh_degree}, reverse=True):
-                s2 = RasterSettings(W, H, active_sh_degree=deg)
-                b = SceneBatch([scene])
-                imgs = b.render(cams, settings=s2, blend_cap=cap).rgb
-                q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
-                tag = f"{label}, cap {cap or 'off'}, SH{deg}"
-                fps = fps_line(tag + ", 8/call", lambda: [b.render(cams[i:i + 8], settings=s2, blend_cap=cap)
-                                                         for i in range(0, len(cams), 8)], len(cams), args.reps)
-                print(f"    PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
-                      f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([s for _, s in q]):.4f}; "
-                      f"x{fps / before:.2f} vs exact 8/call")
-        print_phases(label, phases(scene, cams, st, args.caps[-1], 16))
+        b = SceneBatch([scene])
+        for deg in sorted({0, model.sh_degree}, reverse=True):
+            for ts in args.t_stop:
+                for cap in args.caps:
+                    if label == "full" and (deg, ts, cap) == (model.sh_degree, 0.0, 0):
+                        continue  # the exact render itself
+                    approx_line(f"{label}, SH{deg}, t_stop {ts}, cap {cap or 'off'}", b, cams,
+                                RasterSettings(W, H, active_sh_degree=deg), ts, cap, exact,
+                                before, args.reps)
+        if label != "full":
+            print_phases(label, phases(scene, cams, st, 0, 16))
+
+
+def approx_line(tag: str, b: SceneBatch, cams: list, st: RasterSettings, ts: float, cap: int,
+                exact: list, before: float, reps: int) -> None:
+    """frames/s (8 cameras per call) and PSNR/SSIM vs exact of one approximation."""
+    imgs = b.render(cams, settings=st, blend_cap=cap, t_stop=ts).rgb
+    q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
+    fps = fps_line(tag, lambda: [b.render(cams[i:i + 8], settings=st, blend_cap=cap, t_stop=ts)
+                                 for i in range(0, len(cams), 8)], len(cams), reps)
+    print(f"    PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
+          f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f}; "
+          f"x{fps / before:.2f} per CPU-s vs exact 8/call")
 
 
 def main() -> None:
@@ -200,7 +232,9 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=16)
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.995])
-    ap.add_argument("--caps", type=int, nargs="+", default=[0, 32])
+    ap.add_argument("--caps", type=int, nargs="+", default=[0])
+    ap.add_argument("--t-stop", type=float, nargs="+", default=[0.0, 0.01])
+    ap.add_argument("--synthetic-splats", type=int, default=75_000)
     args = ap.parse_args()
     print(f"# env render benchmark\ncommand: {' '.join([sys.executable] + sys.argv)}")
     print(f"hardware: {hardware_line()}; numba {numba.__version__}")
