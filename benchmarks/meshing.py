@@ -115,16 +115,17 @@ def run(args) -> dict:
 
 
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
-    "baseline (fuse every pixel, no ground growth)": (dict(carve=None), dict(fill_holes=False), {}),
-    "+ ground growth": (dict(carve=None), {}, {}),
-    "+ growth + body carving": (dict(carve=CarveConfig(rays=False)), {}, {}),
-    "+ growth + ray carving": (dict(carve=CarveConfig(body=False)), {}, {}),
-    "+ growth + body + ray carving (default)": (dict(carve=CarveConfig()), {}, {}),
+    "baseline (fuse every pixel, no ground growth)": (dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), {}),
+    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), {}),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), {}),
+    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), {}),
+    "+ growth + body carving + walked ground (default)": (dict(carve=CarveConfig()), {}, {}),
+    "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
     "default + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, {}),
     "default + opacity >= 0.2, cov. culling 1e-3": (
         dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=1e-3)),
 }
-DEFAULT_VARIANT = "+ growth + body + ray carving (default)"
+DEFAULT_VARIANT = "+ growth + body carving + walked ground (default)"
 
 
 def find_clip(work: Path) -> Path:

@@ -47,7 +47,7 @@ def carve_masks(vs: list[DepthView], conf: CarveConfig) -> list[np.ndarray]:
 
 def test_rays_of_other_views_carve_the_floater_and_keep_the_wall():
     vs = views()
-    keep = carve_masks(vs, CarveConfig(body=False))
+    keep = carve_masks(vs, CarveConfig(body=False, rays=True))
     assert not keep[0][22:38, 32:48].any()  # floater pixels dropped
     pts0 = backproject(vs[0].depth, K, vs[0].cam_to_world)
     wall0 = (vs[0].depth > 0) & (pts0[..., 0] > 5.9)
@@ -76,7 +76,7 @@ def test_fusion_without_carving_keeps_the_phantom_and_with_carving_removes_it():
         return int(np.sum((c[:, 0] > 2.0) & (c[:, 0] < 3.5) & (c[:, 2] > 0.3)))
 
     assert phantom_faces(MeshingConfig(carve=None)) > 10
-    assert phantom_faces(MeshingConfig(carve=CarveConfig())) == 0
+    assert phantom_faces(MeshingConfig(carve=CarveConfig(rays=True))) == 0
 
 
 def test_meshing_views_can_leave_out_low_opacity_splats():
