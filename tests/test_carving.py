@@ -47,7 +47,7 @@ def carve_masks(vs: list[DepthView], conf: CarveConfig) -> list[np.ndarray]:
 
 def test_rays_of_other_views_carve_the_floater_and_keep_the_wall():
     vs = views()
-    keep = carve_masks(vs, CarveConfig(body=False))
+    keep = carve_masks(vs, CarveConfig(body=False, rays=True))
     assert not keep[0][22:38, 32:48].any()  # floater pixels dropped
     pts0 = backproject(vs[0].depth, K, vs[0].cam_to_world)
     wall0 = (vs[0].depth > 0) & (pts0[..., 0] > 5.9)
@@ -76,4 +76,18 @@ def test_fusion_without_carving_keeps_the_phantom_and_with_carving_removes_it():
         return int(np.sum((c[:, 0] > 2.0) & (c[:, 0] < 3.5) & (c[:, 2] > 0.3)))
 
     assert phantom_faces(MeshingConfig(carve=None)) > 10
-    assert phantom_faces(MeshingConfig(carve=CarveConfig())) == 0
+    assert phantom_faces(MeshingConfig(carve=CarveConfig(rays=True))) == 0
+
+
+def test_meshing_views_can_leave_out_low_opacity_splats():
+    import torch
+
+    from vid2sim.factory.geometry.splat_views import SplatViewConfig, meshing_model
+    from vid2sim.splats.model import GaussianModel
+
+    xyz = torch.tensor([[0.0, 0.0, 2.0], [0.5, 0.0, 2.0], [1.0, 0.0, 2.0]])
+    model = GaussianModel.from_points(xyz, torch.full((3, 3), 0.5), sh_degree=0, opacity=0.1)
+    model.opacity_logits = torch.tensor([-3.0, 0.0, 3.0])  # opacities 0.05, 0.5, 0.95
+    assert meshing_model(model, SplatViewConfig()).num == 3
+    kept = meshing_model(model, SplatViewConfig(min_opacity=0.2))
+    assert kept.num == 2 and float(kept.opacities.min()) > 0.2

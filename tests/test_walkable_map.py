@@ -70,7 +70,8 @@ def test_path_off_ground_raises():
     far_path = PATH + np.array([0.0, 20.0, 0.0])
     with pytest.raises(WalkableError) as e:
         walkable_map(plane_points(-4, 4, -2, 2), None, far_path,
-                     WalkableConfig(path_radius_m=0.0, max_dist_from_path_m=100.0))
+                     WalkableConfig(path_radius_m=0.0, walked_radius_m=0.0,
+                                    max_dist_from_path_m=100.0))
     assert e.value.reason == "path_off_ground"
     with pytest.raises(WalkableError, match="bad_camera_path"):
         walkable_map(plane_points(-4, 4, -2, 2), None, np.zeros((0, 3)), WalkableConfig())

@@ -27,7 +27,9 @@ from vid2sim.factory.geometry.raycast import pixel_rays_cam
 
 @dataclass(frozen=True)
 class CarveConfig:
-    rays: bool = True  # ray (space) carving
+    # ray (space) carving: off by default, it did not pay on the GoPro clip (its phantom
+    # obstacles are consistent splats, which every view's depth stops at; README ablation)
+    rays: bool = False
     body: bool = True  # walker's body carving
     min_hit_views: int = 1  # 2+ = multi-view consistency: a depth voxel seen by that many views
     voxel_m: float = 0.1
@@ -128,7 +130,8 @@ def free_space(depths: Sequence[np.ndarray], Ks: Sequence[np.ndarray],
     stamp = np.full(n, -1, np.int32)
     shape = np.array(grid.shape, np.int64)
     s = max(1, conf.pixel_stride)
-    for vid, (depth, K, c2w) in enumerate(zip(depths, Ks, c2ws)):
+    need_rays = conf.rays or conf.min_hit_views > 1
+    for vid, (depth, K, c2w) in enumerate(zip(depths, Ks, c2ws) if need_rays else ()):
         c2w = np.asarray(c2w, np.float64)
         H, W = depth.shape
         rays = pixel_rays_cam(K, W, H)  # [H, W, 3] z = 1
