@@ -90,3 +90,21 @@ def test_person_is_drawn_to_scale_and_limbs_swing(client: int) -> None:
     w.phase = -np.pi / 2
     rgb_b, _ = crowd.draw(K, w2c, 128, 72)
     assert (rgb_a != rgb_b).any()
+
+
+def test_people_yield_to_the_robot_then_walk_on(client: int) -> None:
+    crowd = Crowd(_plaza(), 1, np.random.default_rng(5), client)
+    w = crowd.walkers[0]
+    crowd.step(0.2)  # walking: yaw now points along its path
+    ahead = w.xy + 0.6 * np.array([np.cos(w.yaw), np.sin(w.yaw)])
+    before = w.xy.copy()
+    for _ in range(5):  # 1 s with the robot 0.6 m ahead: waits
+        crowd.step(0.2, robot_xy=ahead)
+    assert np.array_equal(w.xy, before)
+    for _ in range(8):  # after MAX_WAIT it walks on
+        crowd.step(0.2, robot_xy=ahead)
+    assert not np.array_equal(w.xy, before)
+    behind = w.xy - 0.6 * np.array([np.cos(w.yaw), np.sin(w.yaw)])
+    before = w.xy.copy()
+    crowd.step(0.2, robot_xy=behind)  # a robot behind does not stop anyone
+    assert not np.array_equal(w.xy, before)

@@ -2,8 +2,11 @@
 
 Each person walks the planner's path to a random free point at a speed drawn from
 U(SPEED_RANGE) (human walking speeds, ~1.0-1.6 m/s; MetaUrban's pedestrians walk at ~1 m/s
-and re-plan on arrival) and picks a new goal and a new path when it arrives. There is no
-local avoidance between people (MetaUrban adds ORCA; not done here).
+and re-plan on arrival) and picks a new goal and a new path when it arrives. Local behaviour
+is a simple yield rule, not ORCA (MetaUrban's choice): a person waits while the robot or
+another person is within YIELD_DISTANCE m ahead (within YIELD_ANGLE of the walking
+direction), for at most MAX_WAIT s, then walks on (so two people facing each other do not
+wait forever).
 
 Body: a simple articulated figure (legs and arms swing with the gait, torso, head), drawn by
 the env rasteriser, 1.55-1.90 m tall. Physics: one kinematic pybullet capsule per person
@@ -29,6 +32,9 @@ HEIGHT_RANGE = (1.55, 1.90)  # m
 BODY_RADIUS = 0.25  # m, collision capsule
 STRIDE = 1.4  # m per gait cycle (two steps)
 SWING = 0.45  # rad, peak leg swing
+YIELD_DISTANCE = 0.9  # m
+YIELD_ANGLE = math.radians(50.0)
+MAX_WAIT = 2.0  # s
 SKIN = ((230, 190, 160), (190, 140, 100), (120, 80, 55), (80, 55, 40))
 LIGHT_DIR = np.array([0.35, 0.25, 0.9]) / np.linalg.norm([0.35, 0.25, 0.9])
 
@@ -88,6 +94,7 @@ class _Walker:
         self.arc: Optional[np.ndarray] = None  # [K]
         self.s = 0.0
         self.phase = 0.0
+        self.waited = 0.0  # s spent yielding in a row
 
     def set_path(self, path: np.ndarray) -> None:
         self.path = path
@@ -184,13 +191,32 @@ class Crowd:
             return np.zeros((0, 3), np.int32), np.zeros((0, 3), np.uint8)
         return np.concatenate(faces).astype(np.int32), np.concatenate(colors)
 
-    def step(self, dt: float) -> None:
-        """Walk everyone dt seconds; new goal and path on arrival; move the capsules."""
-        for w in self.walkers:
+    def step(self, dt: float, robot_xy: Optional[Sequence[float]] = None) -> None:
+        """Walk everyone dt seconds (yielding to the robot and to each other); new goal and
+        path on arrival; move the capsules."""
+        others = self.positions  # [P, 2] before anyone moves
+        if robot_xy is not None:
+            others = np.concatenate([others, np.asarray(robot_xy, np.float64)[None, :2]])
+        for k, w in enumerate(self.walkers):
+            blocked = self._blocked(k, w, others)
+            if blocked and w.waited < MAX_WAIT:
+                w.waited += dt
+                continue
+            if not blocked:  # after MAX_WAIT, walk on until the way is clear again
+                w.waited = 0.0
             if w.advance(w.speed * dt):
                 self.goals_reached += 1
                 self._new_path(w)
         self._sync_bodies()
+
+    @staticmethod
+    def _blocked(k: int, w: _Walker, others: np.ndarray) -> bool:
+        """True when someone other than walker k stands within the yield cone ahead of it."""
+        d = np.delete(others, k, axis=0) - w.xy  # [M, 2]
+        dist = np.hypot(d[:, 0], d[:, 1])
+        ahead = d @ np.array([math.cos(w.yaw), math.sin(w.yaw)])  # [M]
+        close = (dist < YIELD_DISTANCE) & (dist > 1e-6)
+        return bool((close & (ahead > dist * math.cos(YIELD_ANGLE))).any())
 
     @property
     def positions(self) -> np.ndarray:
