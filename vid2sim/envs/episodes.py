@@ -1,6 +1,6 @@
 """Episode sampling: start and goal on the walkable map joined by an A* path of a given length.
 
-Geodesic range: 10-30 m (the paper) when the map's longest A* path allows, else from 80 % of
+Geodesic range: 10-30 m (the paper) when the map's longest A* path allows, else from 70 % of
 the longest path up to it, never below 5 m (the paper's real-world range): a map whose longest
 path is shorter than 5 m is refused with `SceneError("map_too_small")`.
 """
@@ -55,7 +55,7 @@ def geodesic_range(planner: GridPlanner, conf: EpisodeConfig, scene_id: str = ""
         raise SceneError("map_too_small", f"scene {scene_id!r}: the walkable map's longest A* path "
                          f"is {diam:.1f} m (< {conf.min_geodesic:.0f} m) after {conf.clearance} m "
                          "clearance")
-    return max(conf.min_geodesic, 0.8 * diam), diam
+    return max(conf.min_geodesic, 0.7 * diam), diam
 
 
 def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[float, float],

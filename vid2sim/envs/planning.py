@@ -1,7 +1,7 @@
 """Grid planning on a scene's walkable map: A* paths, free-point sampling, geodesic lengths.
 
-Grid convention (scene bundle `walkable.npz`): `grid[row, col]` uint8, 1 = walkable; cell
-[0, 0] has its lower-left corner at world `origin` (x, y); columns run along +x, rows along +y;
+Grid convention (`vid2sim.formats.walkable`, the bundle's `walkable.npz`): `grid[row, col]`
+uint8, 1 = walkable; cell [0, 0] has its lower-left corner at world `origin` (x, y); columns run along +x, rows along +y;
 `resolution` metres per cell. Points outside the grid are not walkable.
 
 The search is 8-connected with metric step costs (resolution, resolution x sqrt 2); a diagonal
@@ -13,31 +13,15 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
-from typing import Optional, Protocol
+from typing import Optional
 
 import numba
 import numpy as np
 from scipy import ndimage
 
+from vid2sim.formats.walkable import WalkableGrid
+
 SQRT2 = math.sqrt(2.0)
-
-
-class GridLike(Protocol):
-    """Anything with the walkable-grid fields (factory WalkableMap, formats WalkableGrid)."""
-
-    grid: np.ndarray  # [H, W] uint8
-    origin: np.ndarray  # [2]
-    resolution: float
-
-
-@dataclass(frozen=True)
-class Grid:
-    """Plain walkable grid (the bundle's walkable.npz fields)."""
-
-    grid: np.ndarray  # [H, W] uint8, 1 = walkable
-    origin: np.ndarray  # [2] world (x, y) of cell [0, 0]'s lower-left corner
-    resolution: float  # metres per cell
 
 
 class GridPlanner:
@@ -50,7 +34,7 @@ class GridPlanner:
     and resampled every 0.25 m.
     """
 
-    def __init__(self, grid: GridLike, clearance: float = 0.0, snap: float = 0.5,
+    def __init__(self, grid: WalkableGrid, clearance: float = 0.0, snap: float = 0.5,
                  smooth: bool = True) -> None:
         self.raw = np.asarray(grid.grid, np.uint8)  # [H, W]
         self.origin = np.asarray(grid.origin, np.float64).reshape(2)
