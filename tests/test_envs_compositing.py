@@ -12,7 +12,8 @@ import trimesh
 
 from vid2sim.envs.compositing import composite
 from vid2sim.envs.pedestrians import Crowd
-from vid2sim.envs.planning import Grid, GridPlanner
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.envs.raster import rasterize
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
@@ -67,7 +68,7 @@ def test_cone_in_front_of_wall_drawn_behind_hidden(cone_x: float, visible: bool)
 def test_pedestrian_in_front_of_wall_drawn_behind_hidden(person_x: float, visible: bool) -> None:
     wall_rgb, wall_depth = _splat_wall()
     cid = pb.connect(pb.DIRECT)
-    planner = GridPlanner(Grid(np.ones((40, 100), np.uint8), np.array([0.0, -2.0]), 0.1))
+    planner = GridPlanner(WalkableGrid(np.ones((40, 100), np.uint8), np.array([0.0, -2.0]), 0.1))
     crowd = Crowd(planner, 1, np.random.default_rng(0), cid)
     crowd.walkers[0].xy = np.array([person_x, 0.0])
     crowd.walkers[0].yaw = 0.0  # walking away from the camera: shoulders across the view

@@ -7,7 +7,8 @@ import pybullet as pb
 import pytest
 
 from vid2sim.envs.pedestrians import HEIGHT_RANGE, SPEED_RANGE, Crowd
-from vid2sim.envs.planning import Grid, GridPlanner
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 
 K = np.array([[64.0, 0.0, 64.0], [0.0, 64.0, 36.0], [0.0, 0.0, 1.0]])
 
@@ -16,7 +17,7 @@ def _plaza() -> GridPlanner:
     """12 x 12 m walkable square (0.1 m cells) with a 4 x 4 m block in the middle."""
     grid = np.ones((120, 120), np.uint8)
     grid[40:80, 40:80] = 0
-    return GridPlanner(Grid(grid, np.array([0.0, 0.0]), 0.1))
+    return GridPlanner(WalkableGrid(grid, np.array([0.0, 0.0]), 0.1))
 
 
 @pytest.fixture()

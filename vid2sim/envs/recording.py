@@ -22,29 +22,42 @@ import gymnasium as gym
 import numpy as np
 
 PANEL_H = 288  # px: height of both panels
+MAP_W = 512  # px: width of the map panel
 BGR = {"free": (205, 205, 205), "blocked": (60, 60, 60), "planned": (220, 120, 30),
        "taken": (40, 190, 40), "obstacle": (20, 120, 250), "pedestrian": (200, 40, 200),
        "goal": (30, 30, 230), "robot": (0, 220, 255)}
 
 
 class TopdownMap:
-    """Draws topdown_state dicts on a fixed-size map image of one walkable grid."""
+    """Draws topdown_state dicts on a fixed-size map image of one walkable grid.
 
-    def __init__(self, grid: np.ndarray, origin, resolution: float, height: int = PANEL_H) -> None:
+    The grid is cropped to its walkable cells plus CROP_MARGIN m and fitted, aspect kept,
+    into a PANEL_H x MAP_W box (long streets get a thin map rather than a huge frame)."""
+
+    CROP_MARGIN = 1.0  # m
+
+    def __init__(self, grid: np.ndarray, origin, resolution: float, height: int = PANEL_H,
+                 width: int = MAP_W) -> None:
         g = np.asarray(grid) > 0  # [Hg, Wg], row 0 at the lowest y
-        self.origin = np.asarray(origin, np.float64).reshape(2)
         self.resolution = float(resolution)
-        self.scale = height / g.shape[0]  # px per cell
-        width = max(2, int(round(g.shape[1] * self.scale)) // 2 * 2)
-        base = np.where(g[::-1, :, None], BGR["free"], BGR["blocked"]).astype(np.uint8)
-        self.base = cv2.resize(base, (width, height), interpolation=cv2.INTER_NEAREST)
+        r0, r1, c0, c1 = _crop(g, int(round(self.CROP_MARGIN / self.resolution)))
+        g = g[r0:r1, c0:c1]
+        self.origin = np.asarray(origin, np.float64).reshape(2) + np.array([c0, r0]) * self.resolution
+        self.scale = min(height / g.shape[0], width / g.shape[1])  # px per cell
+        h, w = max(1, int(g.shape[0] * self.scale)), max(1, int(g.shape[1] * self.scale))
+        self.offset = np.array([(width - w) // 2, (height - h) // 2])  # px (x, y) of the grid
+        self.grid_h = h
+        img = np.where(g[::-1, :, None], BGR["free"], BGR["blocked"]).astype(np.uint8)
+        self.base = np.full((height, width, 3), BGR["blocked"], np.uint8)
+        self.base[self.offset[1]:self.offset[1] + h, self.offset[0]:self.offset[0] + w] = cv2.resize(
+            img, (w, h), interpolation=cv2.INTER_NEAREST)
 
     def px(self, xy: np.ndarray) -> np.ndarray:
         """World points [N, 2] -> map pixels [N, 2] int (x right, y down = -world y)."""
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
         cells = (xy - self.origin) / self.resolution  # [N, 2] (col, row) continuous
-        u = cells[:, 0] * self.scale
-        v = self.base.shape[0] - cells[:, 1] * self.scale
+        u = self.offset[0] + cells[:, 0] * self.scale
+        v = self.offset[1] + self.grid_h - cells[:, 1] * self.scale
         return np.round(np.stack([u, v], 1)).astype(np.int32)
 
     def draw(self, state: dict[str, Any]) -> np.ndarray:
@@ -68,6 +81,15 @@ class TopdownMap:
         tri = np.array([[1.6, 0.0], [-1.0, 0.9], [-1.0, -0.9]]) * 0.35  # m, robot frame
         world = xy + tri @ np.array([[c, s], [-s, c]])
         cv2.fillPoly(img, [self.px(world)], BGR["robot"], cv2.LINE_AA)
+
+
+def _crop(g: np.ndarray, margin: int) -> tuple[int, int, int, int]:
+    """Row and column bounds (r0, r1, c0, c1) of the walkable cells plus margin cells."""
+    rows, cols = np.nonzero(g)
+    if len(rows) == 0:
+        return 0, g.shape[0], 0, g.shape[1]
+    return (max(rows.min() - margin, 0), min(rows.max() + margin + 1, g.shape[0]),
+            max(cols.min() - margin, 0), min(cols.max() + margin + 1, g.shape[1]))
 
 
 def side_by_side(view_rgb: np.ndarray, map_bgr: np.ndarray) -> np.ndarray:
