@@ -109,3 +109,11 @@ def test_people_yield_to_the_robot_then_walk_on(client: int) -> None:
     before = w.xy.copy()
     crowd.step(0.2, robot_xy=behind)  # a robot behind does not stop anyone
     assert not np.array_equal(w.xy, before)
+
+
+def test_vectorised_mesh_matches_the_per_part_reference(client: int) -> None:
+    crowd, _ = _walk(6, client, steps=7)
+    verts, faces, colors = crowd.mesh_arrays()
+    ref = np.concatenate([v for w in crowd.walkers for v in w.world_vertices()])  # [V, 3]
+    assert np.allclose(verts, ref, atol=1e-5)
+    assert faces.max() == len(verts) - 1 and len(colors) == len(faces)

@@ -142,6 +142,7 @@ class Crowd:
         self.goals_reached = 0
         self.body_ids = [self._add_body(w) for w in self.walkers]
         self._faces, self._colors = self._static_arrays()
+        self._pack()
         for w in self.walkers:
             self._new_path(w)
         self._sync_bodies()
@@ -191,6 +192,20 @@ class Crowd:
             return np.zeros((0, 3), np.int32), np.zeros((0, 3), np.uint8)
         return np.concatenate(faces).astype(np.int32), np.concatenate(colors)
 
+    def _pack(self) -> None:
+        """Per-vertex arrays of everyone's rest mesh for the vectorised pose in mesh_arrays."""
+        local, pivot, sign, owner = [], [], [], []
+        for k, w in enumerate(self.walkers):
+            for p in w.parts:
+                n = len(p.mesh.vertices)
+                local.append(np.asarray(p.mesh.vertices))
+                pivot.append(np.broadcast_to(p.pivot if p.pivot is not None else np.zeros(3), (n, 3)))
+                sign.append(np.full(n, p.swing_sign if p.pivot is not None else 0.0))
+                owner.append(np.full(n, k))
+        cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))  # noqa: E731
+        self._local, self._pivot = cat(local, (0, 3)), cat(pivot, (0, 3))  # [V, 3]
+        self._sign, self._owner = cat(sign, (0,)), cat(owner, (0,)).astype(np.int64)  # [V]
+
     def step(self, dt: float, robot_xy: Optional[Sequence[float]] = None) -> None:
         """Walk everyone dt seconds (yielding to the robot and to each other); new goal and
         path on arrival; move the capsules."""
@@ -229,10 +244,22 @@ class Crowd:
         return np.array([w.yaw for w in self.walkers], np.float64)
 
     def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Everyone's world mesh: vertices [V, 3] f32, faces [F, 3] i32, colours [F, 3] u8."""
+        """Everyone's world mesh: vertices [V, 3] f32, faces [F, 3] i32, colours [F, 3] u8.
+
+        Vectorised over all vertices; `_Walker.world_vertices` is the per-part reference."""
         if not self.walkers:
             return np.zeros((0, 3), np.float32), self._faces, self._colors
-        verts = np.concatenate([v for w in self.walkers for v in w.world_vertices()])
+        phase = np.array([w.phase for w in self.walkers])[self._owner]  # [V]
+        yaw = np.array([w.yaw for w in self.walkers])[self._owner]
+        xy = self.positions[self._owner]  # [V, 2]
+        ang = self._sign * SWING * np.sin(phase)
+        c, s = np.cos(ang), np.sin(ang)
+        d = self._local - self._pivot  # [V, 3] swing about the joint's y axis
+        x = c * d[:, 0] + s * d[:, 2] + self._pivot[:, 0]
+        y = d[:, 1] + self._pivot[:, 1]
+        z = -s * d[:, 0] + c * d[:, 2] + self._pivot[:, 2]
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        verts = np.stack([cy * x - sy * y + xy[:, 0], sy * x + cy * y + xy[:, 1], z], 1)
         return verts.astype(np.float32), self._faces, self._colors
 
     def draw(self, K: np.ndarray, world_to_cam: np.ndarray, width: int, height: int
@@ -245,3 +272,4 @@ class Crowd:
             pb.removeBody(b, physicsClientId=self.client_id)
         self.body_ids, self.walkers = [], []
         self._faces, self._colors = self._static_arrays()
+        self._pack()
