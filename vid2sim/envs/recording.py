@@ -31,18 +31,26 @@ BGR = {"free": (205, 205, 205), "blocked": (60, 60, 60), "planned": (220, 120, 3
 class TopdownMap:
     """Draws topdown_state dicts on a fixed-size map image of one walkable grid.
 
-    The grid is cropped to its walkable cells plus CROP_MARGIN m and fitted, aspect kept,
-    into a PANEL_H x MAP_W box (long streets get a thin map rather than a huge frame)."""
+    The grid is cropped to the `focus` points (the episode: planned path, robot, goal) or,
+    without them, to the walkable cells, plus CROP_MARGIN m, widened towards the panel's
+    aspect where the grid allows, and fitted (aspect kept) into a PANEL_H x MAP_W box."""
 
-    CROP_MARGIN = 1.0  # m
+    CROP_MARGIN = 3.0  # m
 
     def __init__(self, grid: np.ndarray, origin, resolution: float, height: int = PANEL_H,
-                 width: int = MAP_W) -> None:
+                 width: int = MAP_W, focus: Optional[np.ndarray] = None) -> None:
         g = np.asarray(grid) > 0  # [Hg, Wg], row 0 at the lowest y
         self.resolution = float(resolution)
-        r0, r1, c0, c1 = _crop(g, int(round(self.CROP_MARGIN / self.resolution)))
+        origin = np.asarray(origin, np.float64).reshape(2)
+        if focus is not None and len(focus):
+            cells = np.floor((np.asarray(focus, np.float64).reshape(-1, 2) - origin) / self.resolution)
+            rows, cols = cells[:, 1].astype(int), cells[:, 0].astype(int)
+        else:
+            rows, cols = np.nonzero(g)
+        margin = int(round(self.CROP_MARGIN / self.resolution))
+        r0, r1, c0, c1 = _crop(g.shape, rows, cols, margin, width / height)
         g = g[r0:r1, c0:c1]
-        self.origin = np.asarray(origin, np.float64).reshape(2) + np.array([c0, r0]) * self.resolution
+        self.origin = origin + np.array([c0, r0]) * self.resolution
         self.scale = min(height / g.shape[0], width / g.shape[1])  # px per cell
         h, w = max(1, int(g.shape[0] * self.scale)), max(1, int(g.shape[1] * self.scale))
         self.offset = np.array([(width - w) // 2, (height - h) // 2])  # px (x, y) of the grid
@@ -63,7 +71,7 @@ class TopdownMap:
     def draw(self, state: dict[str, Any]) -> np.ndarray:
         """The map [PANEL_H, W, 3] BGR u8 with paths, obstacles, people, goal and robot."""
         img = self.base.copy()
-        r = max(2, int(round(0.3 / self.resolution * self.scale)))
+        r = max(3, int(round(0.3 / self.resolution * self.scale)))
         for key, color in (("planned_path", "planned"), ("path", "taken")):
             pts = np.asarray(state.get(key, np.zeros((0, 2))), np.float64).reshape(-1, 2)
             if len(pts) >= 2:
@@ -83,13 +91,26 @@ class TopdownMap:
         cv2.fillPoly(img, [self.px(world)], BGR["robot"], cv2.LINE_AA)
 
 
-def _crop(g: np.ndarray, margin: int) -> tuple[int, int, int, int]:
-    """Row and column bounds (r0, r1, c0, c1) of the walkable cells plus margin cells."""
-    rows, cols = np.nonzero(g)
+def _crop(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, margin: int, aspect: float
+          ) -> tuple[int, int, int, int]:
+    """Bounds (r0, r1, c0, c1) of the cells rows/cols plus margin, the short side widened
+    towards width/height = aspect, all clipped to the grid `shape`."""
     if len(rows) == 0:
-        return 0, g.shape[0], 0, g.shape[1]
-    return (max(rows.min() - margin, 0), min(rows.max() + margin + 1, g.shape[0]),
-            max(cols.min() - margin, 0), min(cols.max() + margin + 1, g.shape[1]))
+        return 0, shape[0], 0, shape[1]
+    r0, r1 = rows.min() - margin, rows.max() + margin + 1
+    c0, c1 = cols.min() - margin, cols.max() + margin + 1
+    h, w = r1 - r0, c1 - c0
+    if w < aspect * h:
+        grow = int(aspect * h - w) // 2
+        c0, c1 = c0 - grow, c1 + grow
+    else:
+        grow = int(w / aspect - h) // 2
+        r0, r1 = r0 - grow, r1 + grow
+    r0, c0 = max(r0, 0), max(c0, 0)
+    r1, c1 = min(r1, shape[0]), min(c1, shape[1])
+    if r1 <= r0 or c1 <= c0:
+        return 0, shape[0], 0, shape[1]
+    return int(r0), int(r1), int(c0), int(c1)
 
 
 def side_by_side(view_rgb: np.ndarray, map_bgr: np.ndarray) -> np.ndarray:
@@ -133,8 +154,10 @@ class RecordEpisode(gym.Wrapper):
         self.episode += 1
         if self.episode_trigger(self.episode):
             state = self.env.unwrapped.topdown_state()
+            focus = [np.asarray(state[k], np.float64).reshape(-1, 2)
+                     for k in ("planned_path", "robot_xy", "goal") if state.get(k) is not None]
             self._map = TopdownMap(state["grid"], state.get("origin", (0.0, 0.0)),
-                                   state.get("resolution", 0.1))
+                                   state.get("resolution", 0.1), focus=np.concatenate(focus))
             self._write(obs, state)
         return obs, info
 
