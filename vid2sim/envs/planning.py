@@ -118,24 +118,19 @@ class GridPlanner:
 
     def line_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """True when the segment a-b stays on free cells (sampled every resolution / 4)."""
-        n = max(2, int(math.ceil(np.linalg.norm(b - a) / (0.25 * self.resolution))) + 1)
-        t = np.linspace(0.0, 1.0, n)[:, None]
-        p = a + t * (b - a)  # [n, 2]
-        c = np.floor((p - self.origin) / self.resolution).astype(np.int64)
-        H, W = self.free.shape
-        ok = (c[:, 0] >= 0) & (c[:, 0] < W) & (c[:, 1] >= 0) & (c[:, 1] < H)
-        return bool(ok.all() and self.free[c[:, 1], c[:, 0]].all())
+        return _segment_free(self.free, self.origin[0], self.origin[1], self.resolution,
+                             float(a[0]), float(a[1]), float(b[0]), float(b[1]))
 
     def shortcut(self, pts: np.ndarray) -> np.ndarray:
-        """Greedy line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
+        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
         keep = [0]
-        i = 0
-        while i < len(pts) - 1:
-            j = len(pts) - 1
-            while j > i + 1 and not self.line_free(pts[i], pts[j]):
-                j -= 1
-            keep.append(j)
-            i = j
+        i, j = 0, 1
+        while j < len(pts) - 1:  # extend the segment from pts[i] while it stays free
+            if not self.line_free(pts[i], pts[j + 1]):
+                keep.append(j)
+                i = j
+            j += 1
+        keep.append(len(pts) - 1)
         return densify(pts[keep], 0.25)
 
     def distance_field(self, start_xy: tuple[float, float]) -> np.ndarray:
@@ -162,6 +157,20 @@ def path_length(points: np.ndarray) -> float:
     if len(pts) < 2:
         return 0.0
     return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+@numba.njit(cache=True)
+def _segment_free(free: np.ndarray, ox: float, oy: float, res: float, ax: float, ay: float,
+                  bx: float, by: float) -> bool:
+    H, W = free.shape
+    n = max(2, int(math.ceil(math.hypot(bx - ax, by - ay) / (0.25 * res))) + 1)
+    for k in range(n):
+        t = k / (n - 1)
+        c = int(math.floor((ax + t * (bx - ax) - ox) / res))
+        r = int(math.floor((ay + t * (by - ay) - oy) / res))
+        if r < 0 or r >= H or c < 0 or c >= W or not free[r, c]:
+            return False
+    return True
 
 
 def densify(pts: np.ndarray, step: float) -> np.ndarray:
