@@ -35,8 +35,7 @@ def test_expert_socialnav_episode_is_recorded(tmp_path) -> None:
     reg.add(bundle)
     env = gymnasium.make("vid2sim/SocialNav-v0", registry=reg.root, scenes="synthetic-street-s11",
                          checkout_root=tmp_path / "co", training=False)
-    steps = []
-    inner = env
+    steps: list[int] = []
 
     class CountingExpert(PurePursuitExpert):
         def act(self, e):
@@ -47,7 +46,7 @@ def test_expert_socialnav_episode_is_recorded(tmp_path) -> None:
             steps.append(0)
             super().reset(e)
 
-    paths = record_episodes(inner, tmp_path / "videos", 1, CountingExpert(), seed=3)
+    paths = record_episodes(env, tmp_path / "videos", 1, CountingExpert(), seed=3)
     n, shape = _count_frames(paths[0])
     assert n == steps[0] + 1 and steps[0] > 5
     assert shape[0] == PANEL_H
