@@ -57,7 +57,7 @@ def _tiny_copy(bundle, out):
     return out
 
 
-def make(registry, task="PointNav", **kw):
+def make(registry, task: str = "PointNav", **kw):
     reg, co = registry
     return gymnasium.make(f"vid2sim/{task}-v0", registry=reg.root, scenes=SCENE, checkout_root=co, **kw)
 
@@ -71,6 +71,20 @@ def test_check_env_pointnav(registry, variant):
     chans = 1 if variant == "depth" else 3
     assert obs["image"].shape == (6, chans, 72, 128) and obs["image"].dtype == np.uint8
     assert obs["vector"].shape == (6, 2) and obs["image"].std() > 5  # a picture, not a blank
+    env.close()
+
+
+def test_check_env_socialnav_with_actors(registry):
+    env = make(registry, task="SocialNav")
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    env.reset(seed=2)
+    s = env.unwrapped.topdown_state()
+    assert 1 <= len(s["pedestrians"]) <= 4 and len(s["obstacles"]) <= 5
+    before = s["pedestrians"].copy()
+    env.step(np.array([0.0, 0.0], np.float32))
+    moved = np.linalg.norm(env.unwrapped.topdown_state()["pedestrians"] - before, axis=1)
+    assert np.all((moved > 0.1) & (moved < 0.4))  # 1.0-1.6 m/s for 0.2 s
     env.close()
 
 

@@ -5,7 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from vid2sim.envs.planning import Grid, GridPlanner, inflate, path_length
+from vid2sim.envs.planning import GridPlanner, inflate, path_length
+from vid2sim.formats.walkable import WalkableGrid as Grid
 
 
 def open_grid(h: int = 20, w: int = 30, res: float = 0.1, origin=(0.0, 0.0)) -> Grid:
@@ -86,10 +87,3 @@ def test_sample_free_is_reproducible_and_free():
     assert all(p.is_free(*p.sample_free(rng)) for _ in range(50))
     with pytest.raises(ValueError, match="no free cell"):
         GridPlanner(Grid(np.zeros((3, 3), np.uint8), np.zeros(2), 0.1)).sample_free(rng)
-
-
-def test_accepts_factory_walkable_map():
-    from vid2sim.factory.walkable import WalkableMap
-
-    wm = WalkableMap(np.ones((5, 5), np.uint8), np.zeros(2), 0.2)
-    assert GridPlanner(wm).plan((0.1, 0.1), (0.9, 0.9)) is not None

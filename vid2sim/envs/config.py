@@ -23,6 +23,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal, Optional, Sequence, Union
 
+from vid2sim.envs.augment import AugmentConfig
+from vid2sim.envs.obstacles import ObstacleConfig
+
 Variant = Literal["rgb", "depth", "mesh-rgb"]
 VARIANTS: tuple[str, ...] = ("rgb", "depth", "mesh-rgb")
 
@@ -81,12 +84,9 @@ class RewardConfig:
 class EpisodeConfig:
     geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, the paper
     min_geodesic: float = 5.0  # m, the paper's real-world range; smaller maps are refused
-    clearance: float = 0.35  # m, planner inflation (robot half-width + margin) for episodes, expert
+    clearance: float = 0.45  # m, planner inflation (robot half-width 0.3 + tracking margin) for episodes, expert
     start_yaw_noise_deg: float = 15.0
-    obstacles: tuple[int, int] = (0, 5)  # inclusive range per episode
-    obstacle_margin: float = 2.0  # m kept free at the start and at the goal
-    pedestrians: tuple[int, int] = (0, 0)  # inclusive range per episode (SocialNav: >= 1)
-    pedestrian_speed: tuple[float, float] = (1.0, 1.6)  # m/s
+    pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS
 
 
@@ -98,12 +98,14 @@ class EnvConfig:
     frame_stack: int = 6
     physics_hz: int = 50
     control_hz: int = 5
-    training: bool = True  # jitter (and augmentation) on; False = evaluation
+    training: bool = True  # camera jitter and augmentation on; False = evaluation
     jitter: Optional[bool] = None  # None: follows `training`
     robot: RobotConfig = field(default_factory=RobotConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     reward: RewardConfig = field(default_factory=RewardConfig)
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)  # 0-5 on the corridor
+    augment: Optional[AugmentConfig] = None  # None: enabled iff training
     lod: bool = False  # splat octree level of detail (approximate, faster)
 
     def __post_init__(self) -> None:
@@ -119,6 +121,10 @@ class EnvConfig:
     @property
     def use_jitter(self) -> bool:
         return self.training if self.jitter is None else self.jitter
+
+    @property
+    def augmentation(self) -> AugmentConfig:
+        return self.augment if self.augment is not None else AugmentConfig(enabled=self.training)
 
 
 SceneSource = Union[str, Sequence[str]]

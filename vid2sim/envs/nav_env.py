@@ -12,6 +12,9 @@ Env contract
   0..255 = 0..20 m), `vector` float32 [6, 2] (distance to goal in m, heading to goal / pi).
 - terminated: success (<= 0.5 m from the goal), left the walkable map, > 3 collision events.
   truncated: the 3000-step limit (reward -10 as the paper, reported as truncation).
+- Each episode: 0-5 obstacles on the A* corridor (`EnvConfig.obstacles`); SocialNav adds 1-4
+  pedestrians (`EpisodeConfig.pedestrians`) stepped once per control step. Augmentation and
+  camera jitter are on when `training` (default), off for evaluation (`training=False`).
 - info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
   also `episode` (a `metrics.EpisodeRecord`).
 """
@@ -29,11 +32,14 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from vid2sim.envs.camera import Jitter, world_to_camera
+from vid2sim.envs.actors import EpisodeActors
+from vid2sim.envs.augment import Augmenter
+from vid2sim.envs.camera import Jitter, intrinsics, world_to_camera
 from vid2sim.envs.config import EnvConfig
 from vid2sim.envs.episodes import Episode, sample_episode
 from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.envs.physics import RobotState
+from vid2sim.envs.planning import path_length
 from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.reward import RewardTerms, StepOutcome, reward
 from vid2sim.envs.scenes import resolve_scene_ids
@@ -42,7 +48,7 @@ from vid2sim.registry import Registry
 
 TASKS = ("pointnav", "socialnav")
 MAX_LOADED_SCENES = 4
-PARTS = ("render", "physics", "obstacles", "pedestrians", "reward")
+PARTS = ("render", "physics", "obstacles", "pedestrians", "augment", "reward")
 
 
 class InvalidActionError(ValueError):
@@ -76,6 +82,9 @@ class NavEnv(gym.Env):
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.timings: dict[str, float] = defaultdict(float)
         self.episode: Optional[Episode] = None
+        self.actors: Optional[EpisodeActors] = None
+        self.augmenter = Augmenter(self.config.augmentation)
+        self.K = intrinsics(self.config.camera)
 
     # ------------------------------------------------------------------ scenes
     def _world(self, scene_id: str) -> SceneWorld:
@@ -93,10 +102,18 @@ class NavEnv(gym.Env):
         rng = self.np_random
         options = options or {}
         scene_id = options.get("scene_id") or self.scene_ids[int(rng.integers(len(self.scene_ids)))]
+        if self.actors is not None:
+            self.actors.remove()
         self.world = self._world(scene_id)
         c = self.config
         self.episode = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id)
         ep = self.episode
+        lo, hi = c.episode.pedestrians
+        peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
+        self.actors = EpisodeActors(self.world.physics.client)
+        self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds)
+        self.shortest = path_length(self.actors.expert_path)
+        self.augmenter.reset(rng)
         self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
         self.world.physics.place(self.state.x, self.state.y, self.state.yaw)
         self.jitter = Jitter.sample(c.camera, rng) if c.use_jitter else Jitter.none()
@@ -119,6 +136,9 @@ class NavEnv(gym.Env):
         speed_n, steer_n = self._check_action(action)
         c = self.config
         prev_dist = self.distance()
+        t_obs, t_ped = self.actors.step(1.0 / c.control_hz, (self.state.x, self.state.y))
+        self.timings["obstacles"] += t_obs
+        self.timings["pedestrians"] += t_ped
         t0 = time.perf_counter()
         collided = self._drive(speed_n * c.robot.max_speed, steer_n * c.robot.max_steer)
         t1 = time.perf_counter()
@@ -129,6 +149,11 @@ class NavEnv(gym.Env):
             self.collision_events += 1
         self.collision_steps += int(collided)
         self.prev_collided = collided
+        r = c.robot
+        if not collided and self.actors.near_pedestrian(
+                self.state.x, self.state.y, self.state.yaw, r.length / 2, r.width / 2,
+                c.episode.proximity_radius):
+            self.proximity_steps += 1
         outcome = StepOutcome(prev_dist, self.distance(), abs(steer_n - self.prev_steer), speed_n,
                               collided, self.collision_events,
                               self.world.walkable.is_walkable(self.state.x, self.state.y), self.steps)
@@ -151,6 +176,9 @@ class NavEnv(gym.Env):
         return np.repeat(f, 3, 0).transpose(1, 2, 0) if f.shape[0] == 1 else f.transpose(1, 2, 0)
 
     def close(self) -> None:
+        if self.actors is not None:
+            self.actors.remove()
+            self.actors = None
         for w in self._worlds.values():
             w.close()
         self._worlds.clear()
@@ -187,8 +215,14 @@ class NavEnv(gym.Env):
                               self.jitter.at(self.t))
         rgb, depth = self.world.view.draw(w2c)
         self.timings["render"] += time.perf_counter() - t0
+        rgb, depth, t_obs, t_ped = self.actors.draw_over(rgb, depth, self.K, w2c)
+        self.timings["obstacles"] += t_obs
+        self.timings["pedestrians"] += t_ped
         if c.variant == "depth":
             return depth_to_u8(depth, c.camera.depth_max)[None]
+        t0 = time.perf_counter()
+        rgb = self.augmenter.apply(rgb, depth)
+        self.timings["augment"] += time.perf_counter() - t0
         return np.ascontiguousarray(rgb.transpose(2, 0, 1))
 
     def distance(self) -> float:
@@ -216,14 +250,14 @@ class NavEnv(gym.Env):
 
     def record(self, end: str) -> EpisodeRecord:
         """Metrics record of the episode so far."""
-        return EpisodeRecord(success=end == "success", shortest_length=self.episode.geodesic,
+        return EpisodeRecord(success=end == "success", shortest_length=self.shortest,
                              path_length=self.travelled, collision_events=self.collision_events,
                              collision_steps=self.collision_steps,
                              proximity_steps=self.proximity_steps, steps=self.steps, end=end)
 
     def expert_path(self) -> np.ndarray:
         """A* waypoints [K, 2] the scripted expert follows (obstacles avoided)."""
-        return self.episode.path
+        return self.actors.expert_path
 
     def robot_pose(self) -> tuple[float, float, float]:
         return self.state.x, self.state.y, self.state.yaw
@@ -235,8 +269,8 @@ class NavEnv(gym.Env):
                 "resolution": w.assets.walkable.resolution,
                 "robot_xy": np.array([self.state.x, self.state.y]), "robot_yaw": self.state.yaw,
                 "path": np.array(self.trace), "planned_path": self.episode.path,
-                "goal": np.asarray(self.episode.goal), "obstacles": np.zeros((0, 2)),
-                "pedestrians": np.zeros((0, 2))}
+                "goal": np.asarray(self.episode.goal), "obstacles": self.actors.obstacle_xy(),
+                "pedestrians": self.actors.pedestrian_xy()}
 
 
 def _with_overrides(conf: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:

@@ -36,6 +36,7 @@ class PhysicsWorld:
         self.client = pb.connect(pb.DIRECT)
         self.robot_conf = robot
         c = self.client
+        pb.setGravity(0.0, 0.0, -9.81, physicsClientId=c)  # only falling obstacles feel it
         plane = pb.createCollisionShape(pb.GEOM_PLANE, physicsClientId=c)
         self.ground_id = pb.createMultiBody(0, plane, physicsClientId=c)
         self.scene_id = -1

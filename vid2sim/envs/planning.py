@@ -1,7 +1,7 @@
 """Grid planning on a scene's walkable map: A* paths, free-point sampling, geodesic lengths.
 
-Grid convention (scene bundle `walkable.npz`): `grid[row, col]` uint8, 1 = walkable; cell
-[0, 0] has its lower-left corner at world `origin` (x, y); columns run along +x, rows along +y;
+Grid convention (`vid2sim.formats.walkable`, the bundle's `walkable.npz`): `grid[row, col]`
+uint8, 1 = walkable; cell [0, 0] has its lower-left corner at world `origin` (x, y); columns run along +x, rows along +y;
 `resolution` metres per cell. Points outside the grid are not walkable.
 
 The search is 8-connected with metric step costs (resolution, resolution x sqrt 2); a diagonal
@@ -13,31 +13,15 @@ from __future__ import annotations
 
 import heapq
 import math
-from dataclasses import dataclass
-from typing import Optional, Protocol
+from typing import Optional
 
 import numba
 import numpy as np
 from scipy import ndimage
 
+from vid2sim.formats.walkable import WalkableGrid
+
 SQRT2 = math.sqrt(2.0)
-
-
-class GridLike(Protocol):
-    """Anything with the walkable-grid fields (factory WalkableMap, formats WalkableGrid)."""
-
-    grid: np.ndarray  # [H, W] uint8
-    origin: np.ndarray  # [2]
-    resolution: float
-
-
-@dataclass(frozen=True)
-class Grid:
-    """Plain walkable grid (the bundle's walkable.npz fields)."""
-
-    grid: np.ndarray  # [H, W] uint8, 1 = walkable
-    origin: np.ndarray  # [2] world (x, y) of cell [0, 0]'s lower-left corner
-    resolution: float  # metres per cell
 
 
 class GridPlanner:
@@ -50,7 +34,7 @@ class GridPlanner:
     and resampled every 0.25 m.
     """
 
-    def __init__(self, grid: GridLike, clearance: float = 0.0, snap: float = 0.5,
+    def __init__(self, grid: WalkableGrid, clearance: float = 0.0, snap: float = 0.5,
                  smooth: bool = True) -> None:
         self.raw = np.asarray(grid.grid, np.uint8)  # [H, W]
         self.origin = np.asarray(grid.origin, np.float64).reshape(2)
@@ -134,24 +118,19 @@ class GridPlanner:
 
     def line_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """True when the segment a-b stays on free cells (sampled every resolution / 4)."""
-        n = max(2, int(math.ceil(np.linalg.norm(b - a) / (0.25 * self.resolution))) + 1)
-        t = np.linspace(0.0, 1.0, n)[:, None]
-        p = a + t * (b - a)  # [n, 2]
-        c = np.floor((p - self.origin) / self.resolution).astype(np.int64)
-        H, W = self.free.shape
-        ok = (c[:, 0] >= 0) & (c[:, 0] < W) & (c[:, 1] >= 0) & (c[:, 1] < H)
-        return bool(ok.all() and self.free[c[:, 1], c[:, 0]].all())
+        return _segment_free(self.free, self.origin[0], self.origin[1], self.resolution,
+                             float(a[0]), float(a[1]), float(b[0]), float(b[1]))
 
     def shortcut(self, pts: np.ndarray) -> np.ndarray:
-        """Greedy line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
+        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
         keep = [0]
-        i = 0
-        while i < len(pts) - 1:
-            j = len(pts) - 1
-            while j > i + 1 and not self.line_free(pts[i], pts[j]):
-                j -= 1
-            keep.append(j)
-            i = j
+        i, j = 0, 1
+        while j < len(pts) - 1:  # extend the segment from pts[i] while it stays free
+            if not self.line_free(pts[i], pts[j + 1]):
+                keep.append(j)
+                i = j
+            j += 1
+        keep.append(len(pts) - 1)
         return densify(pts[keep], 0.25)
 
     def distance_field(self, start_xy: tuple[float, float]) -> np.ndarray:
@@ -178,6 +157,20 @@ def path_length(points: np.ndarray) -> float:
     if len(pts) < 2:
         return 0.0
     return float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+
+
+@numba.njit(cache=True)
+def _segment_free(free: np.ndarray, ox: float, oy: float, res: float, ax: float, ay: float,
+                  bx: float, by: float) -> bool:
+    H, W = free.shape
+    n = max(2, int(math.ceil(math.hypot(bx - ax, by - ay) / (0.25 * res))) + 1)
+    for k in range(n):
+        t = k / (n - 1)
+        c = int(math.floor((ax + t * (bx - ax) - ox) / res))
+        r = int(math.floor((ay + t * (by - ay) - oy) / res))
+        if r < 0 or r >= H or c < 0 or c >= W or not free[r, c]:
+            return False
+    return True
 
 
 def densify(pts: np.ndarray, step: float) -> np.ndarray:

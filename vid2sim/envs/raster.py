@@ -90,8 +90,24 @@ def _clip_near(P: np.ndarray, n_in: int, near: float, out: np.ndarray) -> int:
 
 
 @njit(cache=True)
+def _span(a: float, b: float, lo: float, hi: float) -> tuple[float, float]:
+    """Narrow [lo, hi] to the px where a * px + b >= 0."""
+    if a > 0.0:
+        lo = max(lo, -b / a)
+    elif a < 0.0:
+        hi = min(hi, -b / a)
+    elif b < 0.0:
+        hi = lo - 1.0
+    return lo, hi
+
+
+@njit(cache=True)
 def _draw_tri(u0, v0, w0, u1, v1, w1, u2, v2, w2, r, g, b, rgb, depth):
-    """Fill one screen triangle; (u, v) pixels, w = 1/z. Keeps the nearest per pixel."""
+    """Fill one screen triangle; (u, v) pixels, w = 1/z. Keeps the nearest per pixel.
+
+    Each row visits only the span where the three edge functions can be >= 0 (one pixel of
+    slack each side) and then applies the exact per-pixel test, so thin slivers cost their
+    rows, not their bounding box."""
     H, W = depth.shape
     area = (u1 - u0) * (v2 - v0) - (v1 - v0) * (u2 - u0)
     if abs(area) < 1e-12:
@@ -103,9 +119,19 @@ def _draw_tri(u0, v0, w0, u1, v1, w1, u2, v2, w2, r, g, b, rgb, depth):
     if x0 > x1 or y0 > y1:
         return
     inv = 1.0 / area
+    a0, a1 = -(v2 - v1) * inv, -(v0 - v2) * inv  # d e0 / d px, d e1 / d px
     for i in range(y0, y1 + 1):
         py = i + 0.5
-        for j in range(x0, x1 + 1):
+        b0 = ((u2 - u1) * (py - v1) + (v2 - v1) * u1) * inv  # e0 = a0 px + b0
+        b1 = ((u0 - u2) * (py - v2) + (v0 - v2) * u2) * inv
+        lo, hi = _span(a0, b0, x0 + 0.5, x1 + 0.5)
+        lo, hi = _span(a1, b1, lo, hi)
+        lo, hi = _span(-a0 - a1, 1.0 - b0 - b1, lo, hi)
+        if lo > hi:
+            continue
+        j0 = max(x0, int(math.floor(lo - 0.5)) - 1)
+        j1 = min(x1, int(math.ceil(hi - 0.5)) + 1)
+        for j in range(j0, j1 + 1):
             px = j + 0.5
             e0 = ((u2 - u1) * (py - v1) - (v2 - v1) * (px - u1)) * inv
             e1 = ((u0 - u2) * (py - v2) - (v0 - v2) * (px - u2)) * inv
@@ -121,37 +147,55 @@ def _draw_tri(u0, v0, w0, u1, v1, w1, u2, v2, w2, r, g, b, rgb, depth):
 
 
 @njit(cache=True)
+def _project(cam, fx, skew, cx, fy, cy, near, width, height):
+    """Per vertex: screen u, v, 1/z [V] and an outcode [V] (bits: left, right, top, bottom,
+    behind the near plane) for rejecting whole faces outside the view."""
+    n = cam.shape[0]
+    su, sv, sw = np.empty(n), np.empty(n), np.empty(n)
+    code = np.zeros(n, np.int32)
+    for i in range(n):
+        z = cam[i, 2]
+        if z < near:
+            code[i] = 16
+            continue
+        iz = 1.0 / z
+        u = (fx * cam[i, 0] + skew * cam[i, 1]) * iz + cx
+        v = fy * cam[i, 1] * iz + cy
+        su[i], sv[i], sw[i] = u, v, iz
+        code[i] = (u < 0.0) * 1 + (u > width) * 2 + (v < 0.0) * 4 + (v > height) * 8
+    return su, sv, sw, code
+
+
+@njit(cache=True)
 def _raster_kernel(cam, faces, colors, fx, skew, cx, fy, cy, near, rgb, depth):
-    """Clip, project and fill every face in order (serial; one env = one core)."""
+    """Project vertices once, reject faces outside the view, clip those crossing the near
+    plane, fill the rest in order (serial; one env = one core)."""
+    H, W = depth.shape
+    su, sv, sw, code = _project(cam, fx, skew, cx, fy, cy, near, W, H)
     P = np.empty((3, 3))
     Q = np.empty((4, 3))
-    su = np.empty(4)
-    sv = np.empty(4)
-    sw = np.empty(4)
+    qu, qv, qw = np.empty(4), np.empty(4), np.empty(4)
     for f in range(faces.shape[0]):
-        zmin = 1e30
+        a, b, c = faces[f, 0], faces[f, 1], faces[f, 2]
+        if code[a] & code[b] & code[c]:
+            continue  # all behind, or all beyond one image border
+        r, g, bl = colors[f, 0], colors[f, 1], colors[f, 2]
+        if not ((code[a] | code[b] | code[c]) & 16):
+            _draw_tri(su[a], sv[a], sw[a], su[b], sv[b], sw[b], su[c], sv[c], sw[c], r, g, bl,
+                      rgb, depth)
+            continue
         for k in range(3):
             vi = faces[f, k]
-            P[k, 0] = cam[vi, 0]
-            P[k, 1] = cam[vi, 1]
-            P[k, 2] = cam[vi, 2]
-            zmin = min(zmin, P[k, 2])
-        if max(P[0, 2], P[1, 2], P[2, 2]) < near:
-            continue
-        if zmin >= near:
-            n = 3
-            Q[:3] = P
-        else:
-            n = _clip_near(P, 3, near, Q)
+            P[k, 0], P[k, 1], P[k, 2] = cam[vi, 0], cam[vi, 1], cam[vi, 2]
+        n = _clip_near(P, 3, near, Q)
         for k in range(n):
             iz = 1.0 / Q[k, 2]
-            su[k] = (fx * Q[k, 0] + skew * Q[k, 1]) * iz + cx
-            sv[k] = fy * Q[k, 1] * iz + cy
-            sw[k] = iz
-        r, g, b = colors[f, 0], colors[f, 1], colors[f, 2]
+            qu[k] = (fx * Q[k, 0] + skew * Q[k, 1]) * iz + cx
+            qv[k] = fy * Q[k, 1] * iz + cy
+            qw[k] = iz
         for k in range(1, n - 1):
-            _draw_tri(su[0], sv[0], sw[0], su[k], sv[k], sw[k], su[k + 1], sv[k + 1],
-                      sw[k + 1], r, g, b, rgb, depth)
+            _draw_tri(qu[0], qv[0], qw[0], qu[k], qv[k], qw[k], qu[k + 1], qv[k + 1], qw[k + 1],
+                      r, g, bl, rgb, depth)
 
 
 def _clip_near_reference(P: np.ndarray, near: float) -> np.ndarray:

@@ -16,11 +16,10 @@ import numpy as np
 import trimesh
 from plyfile import PlyData
 
-from vid2sim.envs.planning import Grid
 from vid2sim.registry import Registry
 from vid2sim.formats.bundle import COLLISION_PLY
 from vid2sim.formats.splat_ply import SPLATS_PLY
-from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
+from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid, load_walkable
 from vid2sim.splats import GaussianModel, read_ply
 
 VISUAL_MESH_PLY = "visual_mesh.ply"
@@ -49,7 +48,7 @@ class SceneAssets:
     bundle_dir: Path
     splats: GaussianModel
     collision: MeshData
-    walkable: Grid
+    walkable: WalkableGrid
     visual_mesh_path: Optional[Path]
 
 
@@ -89,12 +88,10 @@ def load_scene(registry: Registry, scene_id: str, dest_root: Optional[Path] = No
     rec = registry.show(scene_id)
     dest = Path(dest_root or checkout_dir()) / rec.ref
     folder = registry.checkout(scene_id, dest=dest)
-    wg = load_walkable(folder / WALKABLE_NPZ)
-    grid, origin, res = wg.grid, wg.origin, wg.resolution
     visual = folder / VISUAL_MESH_PLY
     return SceneAssets(scene_id=scene_id, bundle_dir=folder, splats=read_ply(folder / SPLATS_PLY),
                        collision=read_collision(folder / COLLISION_PLY),
-                       walkable=Grid(grid, origin, res),
+                       walkable=load_walkable(folder / WALKABLE_NPZ),
                        visual_mesh_path=visual if visual.is_file() else None)
 
 
