@@ -6,13 +6,13 @@ import json
 from dataclasses import asdict, replace
 from typing import Optional
 
-import ray
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from vid2sim.training.config import SACConfig, TrainConfig
 from vid2sim.training.privileged import PRIVILEGED_ID
+from vid2sim.training.rollouts import init_ray
 from vid2sim.training.sac import train
 from vid2sim.training.study import StudyConfig, run_study
 
@@ -25,10 +25,7 @@ def _sac(learning_starts: Optional[int], batch_size: Optional[int], buffer_size:
 
 
 def _ray(address: Optional[str], num_cpus: Optional[int]) -> None:
-    if address:
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+    init_ray(address, num_cpus)
 
 
 def _study_env(env: str) -> dict[str, str]:
