@@ -49,10 +49,10 @@ def report(name: str, rep, budget: str) -> dict:
 
 def run_privileged(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
-    run = args.root / f"privileged_{args.steps}"
+    run = args.root / f"privileged_{args.steps}_h{args.train_max_steps}"
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged",
-                         env_kwargs={"training": True},
+                         env_kwargs={"training": True, "max_steps": args.train_max_steps},
                          registry=reg, n_envs=4, n_actors=0, seed=args.seed, checkpoint_every=5000,
                          sac=replace(PRIV_SAC, net_arch=(256, 256)))
     result = train(config, progress_bar=False, log_every=2000)
@@ -95,6 +95,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--trials", type=int, default=25)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--train-max-steps", type=int, default=600, help="privileged: training episode limit")
     args = ap.parse_args()
     header()
     {"privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
