@@ -67,7 +67,7 @@ def run_privileged(args) -> None:
 def run_baselines(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
     for policy in ("random", "expert"):
-        rep = evaluate(EvalConfig(registry=reg, policy=policy, trials=args.trials,
+        rep = evaluate(EvalConfig(registry=reg, policy=policy, trials=args.trials, max_steps=args.eval_max_steps,
                                   checkout_root=str(args.root / "checkouts")))
         report(policy, rep, "no training")
 
@@ -82,7 +82,7 @@ def run_pixel(args) -> None:
     result = train(config, progress_bar=False, log_every=500)
     for row in result.history:
         print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
-    rep = evaluate(EvalConfig(registry=reg, policy=str(run), trials=args.trials,
+    rep = evaluate(EvalConfig(registry=reg, policy=str(run), trials=args.trials, max_steps=args.eval_max_steps,
                               checkout_root=str(args.root / "checkouts")))
     (run / "eval.json").write_text(rep.to_json())
     report("pixel SAC", rep, f"{result.num_timesteps} env steps, {time.perf_counter() - t0:.0f} s wall")
@@ -95,6 +95,7 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--trials", type=int, default=25)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--eval-max-steps", type=int, default=None, help="episode limit in evaluation (default 3000)")
     ap.add_argument("--train-max-steps", type=int, default=600, help="privileged: training episode limit")
     args = ap.parse_args()
     header()
