@@ -84,13 +84,14 @@ def study_command(
     ray_address: Optional[str] = typer.Option(None, "--ray-address"),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus"),
     env: str = typer.Option("pixel", "--env", help="pixel (PointNav RGB) | privileged (goal vector + ranges)"),
+    eval_max_steps: Optional[int] = typer.Option(None, "--eval-max-steps", help="Evaluation episode limit."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
     config = StudyConfig(registry=registry, out_dir=out_dir, counts=[int(c) for c in counts.split(",")],
                          seeds=seeds, split_seed=split_seed, total_steps=steps, n_envs=n_envs, trials=trials,
                          obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size),
-                         **_study_env(env))
+                         eval_max_steps=eval_max_steps, **_study_env(env))
     _ray(ray_address, num_cpus)
     rows = run_study(config)
     if as_json:
