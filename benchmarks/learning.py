@@ -75,7 +75,7 @@ def run_baselines(args) -> None:
 def run_pixel(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
     run = args.root / f"pixel_{args.steps}"
-    sac = SACConfig(learning_starts=min(1000, args.steps // 2), batch_size=64, buffer_size=20_000)
+    sac = SACConfig(learning_starts=min(1000, args.steps // 3), batch_size=64, buffer_size=20_000, train_freq=4)
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_kwargs={"training": True}, registry=reg,
                          n_envs=2, n_actors=0, seed=args.seed, checkpoint_every=1000, sac=sac)
     t0 = time.perf_counter()
