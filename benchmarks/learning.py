@@ -49,10 +49,10 @@ def report(name: str, rep, budget: str) -> dict:
 
 def run_privileged(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
-    run = args.root / f"privileged_{args.steps}"
+    run = args.root / f"privileged_{args.steps}_h{args.train_max_steps}"
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged",
-                         env_kwargs={"training": True},
+                         env_kwargs={"training": True, "max_steps": args.train_max_steps},
                          registry=reg, n_envs=4, n_actors=0, seed=args.seed, checkpoint_every=5000,
                          sac=replace(PRIV_SAC, net_arch=(256, 256)))
     result = train(config, progress_bar=False, log_every=2000)
@@ -67,7 +67,7 @@ def run_privileged(args) -> None:
 def run_baselines(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
     for policy in ("random", "expert"):
-        rep = evaluate(EvalConfig(registry=reg, policy=policy, trials=args.trials,
+        rep = evaluate(EvalConfig(registry=reg, policy=policy, trials=args.trials, max_steps=args.eval_max_steps,
                                   checkout_root=str(args.root / "checkouts")))
         report(policy, rep, "no training")
 
@@ -75,14 +75,14 @@ def run_baselines(args) -> None:
 def run_pixel(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
     run = args.root / f"pixel_{args.steps}"
-    sac = SACConfig(learning_starts=min(1000, args.steps // 2), batch_size=64, buffer_size=20_000)
+    sac = SACConfig(learning_starts=min(1000, args.steps // 3), batch_size=64, buffer_size=20_000, train_freq=4)
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_kwargs={"training": True}, registry=reg,
                          n_envs=2, n_actors=0, seed=args.seed, checkpoint_every=1000, sac=sac)
     t0 = time.perf_counter()
     result = train(config, progress_bar=False, log_every=500)
     for row in result.history:
         print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
-    rep = evaluate(EvalConfig(registry=reg, policy=str(run), trials=args.trials,
+    rep = evaluate(EvalConfig(registry=reg, policy=str(run), trials=args.trials, max_steps=args.eval_max_steps,
                               checkout_root=str(args.root / "checkouts")))
     (run / "eval.json").write_text(rep.to_json())
     report("pixel SAC", rep, f"{result.num_timesteps} env steps, {time.perf_counter() - t0:.0f} s wall")
@@ -95,6 +95,8 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--trials", type=int, default=25)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--eval-max-steps", type=int, default=None, help="episode limit in evaluation (default 3000)")
+    ap.add_argument("--train-max-steps", type=int, default=600, help="privileged: training episode limit")
     args = ap.parse_args()
     header()
     {"privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)

@@ -23,7 +23,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from street_registry import build  # noqa: E402
 
-from vid2sim.training.rollouts import RayVecEnv, RayVecEnvConfig, specs_for_scenes  # noqa: E402
+from vid2sim.training.rollouts import RayVecEnv, init_ray, RayVecEnvConfig, specs_for_scenes  # noqa: E402
 
 
 def time_env(env, steps: int) -> float:
@@ -50,7 +50,7 @@ def main() -> None:
     specs = specs_for_scenes("vid2sim/PointNav-v0", scenes, args.envs, {"registry": str(root), "training": False})
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
     print(f"# command: {' '.join(sys.argv)}")
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    init_ray(num_cpus=2)
     results = {}
     backends = {"DummyVecEnv": lambda: DummyVecEnv([s.make for s in specs]),
                 "SubprocVecEnv": lambda: SubprocVecEnv([s.make for s in specs], start_method="fork"),

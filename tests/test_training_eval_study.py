@@ -14,6 +14,7 @@ from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.training.config import SACConfig
 from vid2sim.training.evaluate import EvalConfig, bootstrap_ci, evaluate, summarize
 from vid2sim.training.privileged import PRIVILEGED_ID
+from vid2sim.training.rollouts import init_ray
 from vid2sim.training.study import StudyConfig, StudyRow, clip_counts, plot, run_study
 
 
@@ -69,7 +70,7 @@ def test_expert_reaches_goals_on_held_out_scene(street_registry, tmp_path):
 @pytest.mark.slow
 def test_study_end_to_end_on_ray(street_registry, tmp_path):
     path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, runtime_env={"env_vars": {"PYTHONPATH": path}})
+    init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})
     try:
         sac = SACConfig(learning_starts=20, batch_size=8, buffer_size=200, net_arch=(16, 16))
         config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1, 99], seeds=1,

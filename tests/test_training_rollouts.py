@@ -12,14 +12,13 @@ import ray
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from tests.conftest import PROJECT_ROOT
-from vid2sim.training.rollouts import EnvSpec, RayVecEnv, RayVecEnvConfig, partition, specs_for_scenes
+from vid2sim.training.rollouts import EnvSpec, init_ray, RayVecEnv, RayVecEnvConfig, partition, specs_for_scenes
 
 
 @pytest.fixture(scope="module")
 def ray_runtime():
     path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": path}})
+    init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})
     yield
     ray.shutdown()
 

@@ -67,6 +67,7 @@ def policy(
     variant: str = typer.Option("rgb", "--variant", help="rgb | depth (oracle) | mesh-rgb (baseline)"),
     max_steps: Optional[int] = typer.Option(None, "--max-steps", help="Episode limit (default: the env's 3000)."),
     seed: int = typer.Option(1000, "--seed", help="Trial k of every scene uses seed + k."),
+    privileged: bool = typer.Option(False, "--privileged", help="Goal vector + range observations (privileged agent)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
     as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
 ) -> None:
@@ -78,6 +79,7 @@ def policy(
 
     config = EvalConfig(registry=registry, policy=policy, split_seed=split_seed, trials=trials, obstacles=obstacles,
                         variant=variant, max_steps=max_steps, seed=seed,
+                        env_id="vid2sim/PointNavPrivileged-v0" if privileged else None,
                         scene_ids=[s for s in (scenes or "").split(",") if s])
     report = evaluate(config)
     if out:

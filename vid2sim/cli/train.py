@@ -6,13 +6,13 @@ import json
 from dataclasses import asdict, replace
 from typing import Optional
 
-import ray
 import typer
 from rich.console import Console
 from rich.table import Table
 
 from vid2sim.training.config import SACConfig, TrainConfig
 from vid2sim.training.privileged import PRIVILEGED_ID
+from vid2sim.training.rollouts import init_ray
 from vid2sim.training.sac import train
 from vid2sim.training.study import StudyConfig, run_study
 
@@ -25,10 +25,7 @@ def _sac(learning_starts: Optional[int], batch_size: Optional[int], buffer_size:
 
 
 def _ray(address: Optional[str], num_cpus: Optional[int]) -> None:
-    if address:
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False)
+    init_ray(address, num_cpus)
 
 
 def _study_env(env: str) -> dict[str, str]:
@@ -87,13 +84,14 @@ def study_command(
     ray_address: Optional[str] = typer.Option(None, "--ray-address"),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus"),
     env: str = typer.Option("pixel", "--env", help="pixel (PointNav RGB) | privileged (goal vector + ranges)"),
+    eval_max_steps: Optional[int] = typer.Option(None, "--eval-max-steps", help="Evaluation episode limit."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
     config = StudyConfig(registry=registry, out_dir=out_dir, counts=[int(c) for c in counts.split(",")],
                          seeds=seeds, split_seed=split_seed, total_steps=steps, n_envs=n_envs, trials=trials,
                          obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size),
-                         **_study_env(env))
+                         eval_max_steps=eval_max_steps, **_study_env(env))
     _ray(ray_address, num_cpus)
     rows = run_study(config)
     if as_json:

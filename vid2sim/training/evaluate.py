@@ -27,6 +27,7 @@ import vid2sim.training.privileged  # noqa: F401  (registers the privileged-obse
 from vid2sim.envs.config import EnvConfig, EpisodeConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
+from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.registry import Registry
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
@@ -94,10 +95,14 @@ def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], Non
 
 # ------------------------------------------------------------------ episodes
 def eval_env_config(config: EvalConfig) -> tuple[str, EnvConfig]:
+    """Env id and evaluation config: no jitter or augmentation, the obstacle mode's counts."""
+    if config.obstacles not in OBSTACLE_MODES:
+        raise ValueError(f"obstacles must be one of {', '.join(OBSTACLE_MODES)}, got {config.obstacles!r}")
     task = "SocialNav" if config.obstacles == "dynamic" else "PointNav"
-    peds = config.pedestrians if config.obstacles == "dynamic" else (0, 0)
-    episode = replace(EpisodeConfig(), obstacles=OBSTACLE_MODES[config.obstacles], pedestrians=peds)
-    env_conf = EnvConfig(variant=config.variant, training=False, episode=episode)
+    lo, hi = OBSTACLE_MODES[config.obstacles]
+    obstacles = replace(ObstacleConfig(), min_count=lo, max_count=hi)
+    episode = replace(EpisodeConfig(), pedestrians=config.pedestrians)
+    env_conf = EnvConfig(variant=config.variant, training=False, episode=episode, obstacles=obstacles)
     if config.max_steps:
         env_conf = replace(env_conf, reward=replace(env_conf.reward, max_steps=config.max_steps))
     return config.env_id or f"vid2sim/{task}-v0", env_conf

@@ -14,7 +14,8 @@ with R = `max_range` metres (readings saturate at 1).
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import replace
+from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -29,8 +30,10 @@ PRIVILEGED_ID = "vid2sim/PointNavPrivileged-v0"
 
 class PrivilegedNavEnv(NavEnv):
     def __init__(self, *args: Any, n_rays: int = 11, fov_deg: float = 200.0, max_range: float = 5.0,
-                 ray_height: float = 0.3, **kwargs: Any) -> None:
+                 ray_height: float = 0.3, max_steps: Optional[int] = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
+        if max_steps:  # a shorter training horizon (truncation, bootstrapped); evaluation keeps 3000
+            self.config = replace(self.config, reward=replace(self.config.reward, max_steps=max_steps))
         self.n_rays, self.max_range, self.ray_height = n_rays, max_range, ray_height
         self.angles = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n_rays))
         self.march = np.arange(0.1, max_range + 1e-9, 0.1)

@@ -153,6 +153,26 @@ class EnvWorker:
             env.close()
 
 
+def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, attempts: int = 3,
+             runtime_env: Optional[dict] = None) -> None:
+    """Connect to a cluster or start a local runtime; retries a local start that times out.
+
+    Ray waits a fixed 30 s for its raylet; on a heavily loaded machine the first start can miss
+    that window (the error says "node timed out during startup"), and a retry usually succeeds."""
+    for attempt in range(attempts):
+        try:
+            if address:
+                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False, runtime_env=runtime_env)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
+                         runtime_env=runtime_env)
+            return
+        except Exception as e:  # Ray raises a bare Exception for the start-up timeout
+            if "timed out during startup" not in str(e) or attempt == attempts - 1:
+                raise
+            ray.shutdown()
+
+
 @dataclass
 class RayVecEnvConfig:
     n_actors: int = 2

@@ -44,6 +44,7 @@ class StudyConfig:
     num_cpus_per_run: float = 1.0
     env_id: str = "vid2sim/PointNav-v0"  # or PRIVILEGED_ID (goal vector + ranges, no pixels)
     env_module: str = "vid2sim.envs"
+    eval_max_steps: Optional[int] = None  # evaluation episode limit (None: the env's 3000)
 
 
 @dataclass
@@ -83,6 +84,7 @@ def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) ->
     result = train(tc, progress_bar=False)
     report = evaluate(EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
                                  trials=config.trials, obstacles=config.obstacles, env_id=config.env_id,
+                                 max_steps=config.eval_max_steps,
                                  checkout_root=str(Path(config.out_dir) / "checkouts")))
     (run_dir / "eval.json").write_text(report.to_json())
     m = report.metrics
