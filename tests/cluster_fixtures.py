@@ -186,7 +186,7 @@ def stop_cluster(cluster: RayCluster) -> list[str]:
     """Stop the nodes (workers first), then kill anything of ours still alive; return leftovers."""
     for n in reversed(cluster.nodes):
         _stop(n.proc, timeout=40)
-    deadline = time.monotonic() + 20
+    deadline = time.monotonic() + 60  # a loaded machine can take a while to reap workers
     while (left := cluster.node_pids()) and time.monotonic() < deadline:
         time.sleep(0.5)
     leftovers = []

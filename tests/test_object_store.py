@@ -86,3 +86,36 @@ def test_stages_on_two_scratch_dirs_share_only_the_store(s3, tmp_path, monkeypat
     store = ObjectStore(ctx["work_uri"])
     assert store.read_bytes("clip0/masks/masks.txt") == b"frames+masks"
     assert not (tmp_path / "node-a" / node_b.relative_to(tmp_path / "node-b") / "masks").exists()
+
+
+def _source_stage(ctx: dict) -> dict:
+    """Records where the clip's source was found (it must be this node's own copy)."""
+    out = Path(ctx["clip_dir"]) / "decode"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "source.txt").write_text(str(ctx["job"].spec.source.path))
+    mark_done(out, "decode", "k", {}, 0.0)
+    return {"decode_dir": str(out)}
+
+
+def test_uri_source_is_fetched_by_the_node_that_runs_the_stage(s3, tmp_path, monkeypatch):
+    import shutil
+
+    import pyarrow.fs as pafs
+    from ingest_media import make_video
+
+    from vid2sim.factory.runtime.pipeline import clip_context, plan_jobs, preset, rows_from_inputs
+
+    video = make_video(tmp_path / "v.mp4", n=20)
+    fs, path = pafs.FileSystem.from_uri(s3.uri("videos/v.mp4"))
+    pafs.copy_files(str(video), path, destination_filesystem=fs)
+    conf = preset("fast")
+    jobs, failed = plan_jobs(rows_from_inputs([s3.uri("videos/v.mp4")], "CC0"), conf, tmp_path / "driver-cache")
+    assert not failed and len(jobs) == 1
+    shutil.rmtree(tmp_path / "driver-cache")  # the driver's copy is not on the worker node
+    ctx = clip_context(jobs[0], conf, 1, s3.uri(f"w-{tmp_path.name}"))
+    assert "clip_dir" not in ctx and ctx["work_uri"].startswith("s3://")
+    monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-b"))
+    out = OnStore(_source_stage)(ctx)
+    store = ObjectStore(ctx["work_uri"])
+    used = store.read_bytes(f"{ctx['clip_id']}/{out['decode_dir']}/source.txt").decode()
+    assert used.startswith(str(tmp_path / "node-b")) and Path(used).read_bytes() == video.read_bytes()

@@ -150,16 +150,30 @@ def fetch_uri(uri: str, cache_dir: Path, expected_sha256: Optional[str] = None) 
     return target
 
 
-def _copy_uri(uri: str, out) -> None:
+ARROW_SCHEMES = ("s3", "gs", "gcs")  # object stores pyarrow reads natively (no s3fs/gcsfs needed)
+
+
+def _open_uri(uri: str):
+    """A binary stream of `uri`: pyarrow for S3/GCS (endpoint and credentials from the usual
+    environment, e.g. AWS_ENDPOINT_URL), fsspec for everything else."""
+    if uri.split("://", 1)[0].lower() in ARROW_SCHEMES:
+        import pyarrow.fs as pafs
+
+        fs, path = pafs.FileSystem.from_uri(uri)
+        return fs.open_input_stream(path)
     import fsspec
 
-    try:
-        kwargs = {}
-        if uri.startswith(("http://", "https://")):
-            import aiohttp
+    kwargs = {}
+    if uri.startswith(("http://", "https://")):
+        import aiohttp
 
-            kwargs["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=None, sock_connect=30, sock_read=60)}
-        with fsspec.open(uri, "rb", **kwargs) as f:
+        kwargs["client_kwargs"] = {"timeout": aiohttp.ClientTimeout(total=None, sock_connect=30, sock_read=60)}
+    return fsspec.open(uri, "rb", **kwargs)
+
+
+def _copy_uri(uri: str, out) -> None:
+    try:
+        with _open_uri(uri) as f:
             while block := f.read(1 << 20):
                 out.write(block)
     except ImportError as e:  # e.g. s3fs / gcsfs not installed
