@@ -67,7 +67,7 @@ def bench_gopro(args: argparse.Namespace) -> None:
 
 def synthetic_clips(n: int, seconds: float, root: Path) -> list[str]:
     from vid2sim.factory.synthetic.config import preset as street_preset
-    from vid2sim.factory.synthetic.stage import main as make_street
+    from vid2sim.factory.synthetic.make_street import main as make_street
 
     out = []
     for seed in range(n):

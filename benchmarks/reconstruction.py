@@ -38,7 +38,7 @@ COLUMNS = ("psnr", "ssim", "depth_median_abs_rel", "depth_expected_abs_rel", "de
 def synthetic_clip(work: Path, seconds: float, width: int, n_points: int, jitter: float, seed: int) -> tuple[Path, Path]:
     """Render the street (cached) and write an SfM-like PosedClip beside it; returns (posed, depth dir)."""
     from vid2sim.factory.synthetic.config import preset
-    from vid2sim.factory.synthetic.stage import main as synth
+    from vid2sim.factory.synthetic.make_street import main as synth
 
     height = int(round(width * 9 / 16 / 2) * 2)
     conf = preset("default", duration_s=seconds, width=width, height=height, write_frames=True,

@@ -18,7 +18,7 @@ from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, STAGES, St
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.ingest.sources import resolve_source
 from vid2sim.factory.synthetic.config import preset as street_preset
-from vid2sim.factory.synthetic.stage import main as make_street
+from vid2sim.factory.synthetic.make_street import main as make_street
 from vid2sim.registry import Registry
 from vid2sim.formats.bundle import validate_bundle
 

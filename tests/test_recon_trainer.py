@@ -56,7 +56,8 @@ def test_stage_writes_outputs_evaluates_and_skips_rerun(toy, tmp_path):
     assert m["n_test_frames"] == 3 and 10.0 < m["psnr"] < 60.0 and 0.0 < m["ssim"] <= 1.0
     lpips_fn, _ = _lpips_fn()  # LPIPS runs only when its weights are local
     assert (m["lpips"] is None) if lpips_fn is None else (0.0 < m["lpips"] < 1.0)
-    assert 0.0 < m["depth_median_abs_rel"] < 1.0 and m["normal_err_deg"] < 90.0
+    # random normals average 90 deg (sign-sensitive); 40 iterations on the toy reach ~45 deg
+    assert 0.0 < m["depth_median_abs_rel"] < 0.5 and 0.0 < m["normal_err_deg"] < 70.0
     assert read_ply(out / "splats.ply").num == m["n_gaussians"] > 0
     assert C.ReconConfig.load(out / "config.json") == conf
     log = json.loads((out / "train_log.json").read_text())["log"]

@@ -10,7 +10,7 @@ from vid2sim.factory.evaluation.geometry_metrics import erode_walkable
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.evaluation.synthetic_gt import scene_errors, street_config
-from vid2sim.factory.synthetic.stage import main as make_street
+from vid2sim.factory.synthetic.make_street import main as make_street
 from vid2sim.factory.synthetic.street import generate_street
 from vid2sim.formats.walkable import WalkableGrid
 

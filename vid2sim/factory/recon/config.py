@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-from vid2sim.versioning import to_jsonable
+from vid2sim.versioning import from_jsonable, to_jsonable
 
 
 @dataclass
@@ -115,26 +115,11 @@ class ReconConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "ReconConfig":
-        return _from_dict(cls, data)
+        return from_jsonable(cls, data)
 
     @classmethod
     def load(cls, path: Path) -> "ReconConfig":
         return cls.from_dict(json.loads(Path(path).read_text()))
-
-
-def _from_dict(cls: Any, data: dict) -> Any:
-    kwargs = {}
-    for f in dataclasses.fields(cls):
-        if f.name not in data:
-            continue
-        value = data[f.name]
-        sub = f.default_factory if f.default_factory is not dataclasses.MISSING else None  # type: ignore[misc]
-        if sub is not None and dataclasses.is_dataclass(sub) and isinstance(value, dict):
-            value = _from_dict(sub, value)
-        elif isinstance(f.default, tuple) and isinstance(value, list):
-            value = tuple(value)
-        kwargs[f.name] = value
-    return cls(**kwargs)
 
 
 def fast() -> ReconConfig:

@@ -41,6 +41,15 @@ CHECKPOINT = "checkpoint.pt"
 
 # ----------------------------------------------------------------------------- inputs
 
+def check_posed_dir(posed_clip_dir: Path) -> Path:
+    """The folder, or StageError `bad_posed_clip` naming the PosedClip file it lacks."""
+    d = Path(posed_clip_dir)
+    for name in ("cameras.parquet", "points.npz", "frame.json"):
+        if not (d / name).is_file():
+            raise StageError(STAGE, "bad_posed_clip", f"{d} lacks {name}")
+    return d
+
+
 @dataclass
 class PriorTensors:
     """Per training view: prior depth [H, W], confidence [H, W], normals [H, W, 3], ok [H, W]."""
@@ -233,7 +242,7 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
     `.npy` metres); defaults to the clip's frame_info["gt_depth_dir"] when present.
     """
     posed_clip_dir, out_dir = Path(posed_clip_dir), Path(out_dir)
-    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(posed_clip_dir))
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(check_posed_dir(posed_clip_dir)))
     if is_done(out_dir, key):
         return out_dir
     if load_checkpoint(out_dir / CHECKPOINT, key) is None:

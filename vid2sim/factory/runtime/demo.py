@@ -24,7 +24,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     from vid2sim.factory.runtime.progress import IngestProgress
     from vid2sim.factory.runtime.pipeline import STAGES
     from vid2sim.factory.synthetic.config import preset as street_preset
-    from vid2sim.factory.synthetic.stage import main as make_street
+    from vid2sim.factory.synthetic.make_street import main as make_street
     from vid2sim.registry import Registry
 
     console = Console()
