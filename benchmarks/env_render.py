@@ -7,7 +7,7 @@
 Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
 street; the shared GoPro MAX sidewalk clip when ../shared/data is there). Cameras: robot
 poses along the walked path snapped to the walkable map, 0.6 m above the ground, heading
-along the path +-25 deg, the env intrinsics (simready.robot_cameras: 90 deg fov, 128x72).
+along the path +-25 deg, the envs' intrinsics (simready.robot_cameras: 60 deg vertical fov, 128x72).
 Prints frames/s on 1 and 2 threads (and frames per CPU-second: per core), the per-phase
 split, splats in view, blended splats per pixel, and PSNR/SSIM against the exact render for
 every approximation. The sim-ready set is measured on 256 other robot views (random walkable
@@ -180,7 +180,7 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
     model, cams, train, title = loaded
     st = RasterSettings(W, H, active_sh_degree=model.sh_degree)
     print(f"\n## {title}\n  {model.num:,} splats (SH {model.sh_degree}), {len(cams)} robot "
-          f"poses, 0.6 m, 128x72, 90 deg fov")
+          f"poses, 0.6 m, 128x72, 60 deg vertical fov")
     full = StaticScene(model)
     exact = [full.render(c, st).rgb for c in cams]
     fps_line("before: StaticScene.render, exact", lambda: [full.render(c, st) for c in cams],

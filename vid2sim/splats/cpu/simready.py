@@ -32,9 +32,9 @@ from .raster import kernel_tile
 from .static import StaticScene
 
 ENV_WIDTH, ENV_HEIGHT = 128, 72
-# The robot camera's intrinsics (the paper's 1280x720 sensor, scaled to 128x72): the paper gives
-# no focal length; a 90 deg horizontal field of view with a centred principal point is used.
-ENV_FOV_X_DEG = 90.0
+# The robot camera's intrinsics, as the envs' CameraConfig (vid2sim/envs/config.py): the paper
+# gives only the 1280x720 sensor; Unity's default 60 deg vertical fov, centred principal point.
+ENV_VFOV_DEG = 60.0
 ROBOT_CAMERA_HEIGHT_M = 0.6
 
 
@@ -50,10 +50,10 @@ class SimReadyConfig:
 
 def robot_cameras(xy: np.ndarray, yaw: np.ndarray, height_m: float = ROBOT_CAMERA_HEIGHT_M,
                   width: int = ENV_WIDTH, height: int = ENV_HEIGHT,
-                  fov_x_deg: float = ENV_FOV_X_DEG, ground_z: float = 0.0) -> list[Camera]:
+                  vfov_deg: float = ENV_VFOV_DEG, ground_z: float = 0.0) -> list[Camera]:
     """Level forward cameras at xy [P, 2] (z-up metric frame, ground at ground_z), heading
-    yaw [P] radians (0 = +x), height_m above the ground, pinhole with fov_x_deg."""
-    f = 0.5 * width / np.tan(np.deg2rad(fov_x_deg) / 2)
+    yaw [P] radians (0 = +x), height_m above the ground, square pixels, vertical fov vfov_deg."""
+    f = 0.5 * height / np.tan(np.deg2rad(vfov_deg) / 2)
     out = []
     for (x, y), a in zip(np.asarray(xy, np.float64), np.asarray(yaw, np.float64)):
         eye = np.array([x, y, ground_z + height_m])
