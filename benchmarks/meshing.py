@@ -151,6 +151,8 @@ def run_from_splats(args) -> list[dict]:
     rendered: dict[str, tuple[list, float]] = {}
     rows = []
     names = list(VARIANTS) if args.ablation else [args.variant]
+    if args.only:
+        names = [list(VARIANTS)[int(i)] for i in args.only.split(",")]
     for name in names:
         mchg, wchg, vchg = VARIANTS[name]
         vkey = json.dumps(vchg, sort_keys=True)
@@ -165,7 +167,8 @@ def run_from_splats(args) -> list[dict]:
         t_mesh = time.perf_counter() - t0
         wm = walkable_map(res.ground_points, res.collision, src, wconf)
         row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),
-                   mesh_s=round(t_mesh, 2), collision_faces=res.summary["collision_faces"],
+                   mesh_s=round(t_mesh, 2), carve_s=res.summary.get("carve_seconds", 0.0),
+                   collision_faces=res.summary["collision_faces"],
                    **corridor_check(wm, res.collision, src).to_dict())
         if synth is not None:
             err = scene_errors(clip, synth, res.collision, wm, wconf.robot_radius_m, args.unseen_m)
@@ -180,7 +183,7 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("near_path_accuracy_median_m", "acc. median <5 m"),
               ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
-              ("mesh_s", "meshing s")]
+              ("mesh_s", "meshing s"), ("carve_s", "of which carving s")]
 
 
 def print_table(rows: list[dict]) -> None:
@@ -203,6 +206,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.0)
     ap.add_argument("--noise-deg", type=float, default=5.0)
     ap.add_argument("--ablation", action="store_true", help="every variant in VARIANTS (--from-splats)")
+    ap.add_argument("--only", default="", help="comma-separated VARIANTS indices (--from-splats)")
     ap.add_argument("--variant", default=DEFAULT_VARIANT, choices=list(VARIANTS))
     ap.add_argument("--unseen-m", type=float, default=4.0, help="skip this much after the start")
     args = ap.parse_args()
