@@ -124,6 +124,8 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "default + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, {}),
     "default + opacity >= 0.2, cov. culling 1e-3": (
         dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=1e-3)),
+    "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
+    "default + cov. culling 1e-3": (dict(carve=CarveConfig()), {}, dict(cov_cull_alpha=1e-3)),
 }
 DEFAULT_VARIANT = "+ growth + body carving + walked ground (default)"
 
