@@ -171,7 +171,7 @@ def run_from_splats(args) -> list[dict]:
         row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),
                    mesh_s=round(t_mesh, 2), carve_s=res.summary.get("carve_seconds", 0.0),
                    collision_faces=res.summary["collision_faces"],
-                   **corridor_check(wm, res.collision, src).to_dict())
+                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, res.collision, src).to_dict())
         if synth is not None:
             err = scene_errors(clip, synth, res.collision, wm, wconf.robot_radius_m, args.unseen_m)
             row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
