@@ -114,20 +114,21 @@ def run(args) -> dict:
                 **corridor_check(wm, res.collision, T[:, :3, 3]).to_dict())
 
 
+NO_CULL = dict(cov_cull_alpha=None)
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
-    "baseline (fuse every pixel, no ground growth)": (dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), {}),
-    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), {}),
-    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), {}),
-    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), {}),
-    "+ growth + body carving + walked ground (default)": (dict(carve=CarveConfig()), {}, {}),
-    "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
-    "default + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, {}),
-    "default + opacity >= 0.2, cov. culling 1e-3": (
-        dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=1e-3)),
+    "baseline (fuse every pixel, no ground growth)": (
+        dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), NO_CULL),
+    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), {}, NO_CULL),
+    "+ growth + body carving + walked ground + cov. culling 1e-3 (default)": (dict(carve=CarveConfig()), {}, {}),
+    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), {}, NO_CULL),
+    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, NO_CULL),
     "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
-    "default + cov. culling 1e-3": (dict(carve=CarveConfig()), {}, dict(cov_cull_alpha=1e-3)),
+    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=None)),
 }
-DEFAULT_VARIANT = "+ growth + body carving + walked ground (default)"
+DEFAULT_VARIANT = "+ growth + body carving + walked ground + cov. culling 1e-3 (default)"
 
 
 def find_clip(work: Path) -> Path:
