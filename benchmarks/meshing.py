@@ -36,10 +36,10 @@ from common import hardware_line  # noqa: E402  (benchmarks/common.py)
 
 from vid2sim.factory.evaluation.corridor import corridor_check  # noqa: E402
 from vid2sim.factory.geometry.carving import CarveConfig  # noqa: E402
-from vid2sim.factory.evaluation.geometry_metrics import (  # noqa: E402
-    chamfer_points, erode_walkable, grid_iou, sample_surface)
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou  # noqa: E402
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
 from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street

@@ -15,8 +15,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.poses import ate
-from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays, \
-    sample_surface
+from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
 from vid2sim.factory.sfm.posed import PosedClip

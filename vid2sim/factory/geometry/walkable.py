@@ -35,13 +35,25 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.corridor import walked_path
-from vid2sim.factory.evaluation.geometry_metrics import points_by_spacing
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+@dataclass(frozen=True)
+class WalkableOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    grid: str = WALKABLE_NPZ  # vid2sim.formats.walkable
+    summary: str = "walkable.json"
+
+
+OUTPUTS = WalkableOutputs()
+
 
 
 class WalkableError(StageError):
@@ -304,7 +316,7 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     import trimesh
 
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf, input_key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
     if not overwrite and is_done(out_dir, key):
         return out_dir
     path = Path(collision_mesh_path)
@@ -315,10 +327,10 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     with Timer() as t:
         wm = walkable_map(ground_points, mesh, camera_path, conf)
     fresh_dir(out_dir)
-    wm.save(out_dir / WALKABLE_NPZ)
+    wm.save(out_dir / OUTPUTS.grid)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
                    walkable_area_m2=round(wm.area_m2(), 3))
-    (out_dir / "walkable.json").write_text(json.dumps(
+    (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, summary, t.seconds)
     return out_dir
