@@ -114,18 +114,21 @@ def run(args) -> dict:
                 **corridor_check(wm, res.collision, T[:, :3, 3]).to_dict())
 
 
+NO_CULL = dict(cov_cull_alpha=None)
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
-    "baseline (fuse every pixel, no ground growth)": (dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), {}),
-    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), {}),
-    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), {}),
-    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), {}),
-    "+ growth + body carving + walked ground (default)": (dict(carve=CarveConfig()), {}, {}),
-    "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
-    "default + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, {}),
-    "default + opacity >= 0.2, cov. culling 1e-3": (
-        dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=1e-3)),
+    "baseline (fuse every pixel, no ground growth)": (
+        dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), NO_CULL),
+    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), NO_CULL),
+    "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), {}, NO_CULL),
+    "+ growth + body carving + walked ground + cov. culling 1e-3 (default)": (dict(carve=CarveConfig()), {}, {}),
+    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), {}, NO_CULL),
+    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, NO_CULL),
+    "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
+    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=None)),
 }
-DEFAULT_VARIANT = "+ growth + body carving + walked ground (default)"
+DEFAULT_VARIANT = "+ growth + body carving + walked ground + cov. culling 1e-3 (default)"
 
 
 def find_clip(work: Path) -> Path:
@@ -151,6 +154,8 @@ def run_from_splats(args) -> list[dict]:
     rendered: dict[str, tuple[list, float]] = {}
     rows = []
     names = list(VARIANTS) if args.ablation else [args.variant]
+    if args.only:
+        names = [list(VARIANTS)[int(i)] for i in args.only.split(",")]
     for name in names:
         mchg, wchg, vchg = VARIANTS[name]
         vkey = json.dumps(vchg, sort_keys=True)
@@ -165,8 +170,9 @@ def run_from_splats(args) -> list[dict]:
         t_mesh = time.perf_counter() - t0
         wm = walkable_map(res.ground_points, res.collision, src, wconf)
         row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),
-                   mesh_s=round(t_mesh, 2), collision_faces=res.summary["collision_faces"],
-                   **corridor_check(wm, res.collision, src).to_dict())
+                   mesh_s=round(t_mesh, 2), carve_s=res.summary.get("carve_seconds", 0.0),
+                   collision_faces=res.summary["collision_faces"],
+                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, res.collision, src).to_dict())
         if synth is not None:
             err = scene_errors(clip, synth, res.collision, wm, wconf.robot_radius_m, args.unseen_m)
             row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
@@ -180,7 +186,7 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("near_path_accuracy_median_m", "acc. median <5 m"),
               ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
-              ("mesh_s", "meshing s")]
+              ("mesh_s", "meshing s"), ("carve_s", "of which carving s")]
 
 
 def print_table(rows: list[dict]) -> None:
@@ -203,6 +209,7 @@ def main() -> None:
     ap.add_argument("--noise", type=float, default=0.0)
     ap.add_argument("--noise-deg", type=float, default=5.0)
     ap.add_argument("--ablation", action="store_true", help="every variant in VARIANTS (--from-splats)")
+    ap.add_argument("--only", default="", help="comma-separated VARIANTS indices (--from-splats)")
     ap.add_argument("--variant", default=DEFAULT_VARIANT, choices=list(VARIANTS))
     ap.add_argument("--unseen-m", type=float, default=4.0, help="skip this much after the start")
     args = ap.parse_args()

@@ -124,6 +124,7 @@ class FusionResult:
     n_views: int
     n_valid_pixels: int
     n_ground_pixels: int
+    carve_seconds: float = 0.0
 
 
 @dataclass
@@ -265,7 +266,9 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
     vol_vis, vol_col = _new_volume(conf), _new_volume(conf)
     ground_pts: list[np.ndarray] = []
     n_valid = n_ground = 0
-    for view, depth in zip(views, carved_depths(views, conf)):
+    with Timer() as t_carve:
+        depths = carved_depths(views, conf)
+    for view, depth in zip(views, depths):
         valid = depth > 0
         H, W = depth.shape
         rgb = view.rgb if view.rgb is not None else np.full((H, W, 3), 128, np.uint8)
@@ -285,7 +288,7 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
                            f"(range {conf.depth_min_m}..{conf.depth_max_m} m)")
     gp = thin_xy(np.concatenate(ground_pts), conf.ground_point_cell_m)
     return FusionResult(vol_vis.extract_triangle_mesh(), vol_col.extract_triangle_mesh(), gp,
-                        len(views), n_valid, n_ground)
+                        len(views), n_valid, n_ground, round(t_carve.seconds, 3))
 
 
 def thin_xy(pts: np.ndarray, cell_m: float) -> np.ndarray:
@@ -373,7 +376,8 @@ def build_meshes(views: Iterable[DepthView], conf: MeshingConfig) -> MeshingResu
                    n_ground_pixels=fused.n_ground_pixels, raw_collision_faces=raw_faces,
                    collision_faces=len(collision.triangles), visual_faces=len(visual.triangles),
                    n_ground_points=len(ground_points),
-                   fuse_seconds=round(t_fuse.seconds, 3), clean_seconds=round(t_clean.seconds, 3))
+                   fuse_seconds=round(t_fuse.seconds, 3), carve_seconds=fused.carve_seconds,
+                   clean_seconds=round(t_clean.seconds, 3))
     return MeshingResult(collision, visual, ground_points, summary)
 
 
