@@ -87,9 +87,12 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[f
         _, _, term, trunc, _ = env.step(expert.act(env))
         total += time.perf_counter() - t0
         done_steps += 1
-        if term or trunc:
+        if term or trunc:  # reset time stays out of the per-part figures too
+            before = dict(u.timings)
             env.reset(seed=seed)
             expert.reset(env)
+            u.timings.clear()
+            u.timings.update(before)
             seed += 1
     parts = {k: 1e3 * u.timings.get(k, 0.0) / done_steps for k in PARTS}
     parts["other"] = 1e3 * total / done_steps - sum(parts.values())
