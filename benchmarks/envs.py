@@ -20,7 +20,6 @@ from pathlib import Path
 
 import gymnasium
 import numba
-import numpy as np
 
 from common import hardware_line
 import vid2sim.envs  # noqa: F401  (registers the env ids)
