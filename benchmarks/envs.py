@@ -20,10 +20,10 @@ from pathlib import Path
 
 import gymnasium
 import numba
-import numpy as np
 
 from common import hardware_line
 import vid2sim.envs  # noqa: F401  (registers the env ids)
+from vid2sim.envs.config import RewardConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import summarize
 from vid2sim.envs.nav_env import PARTS
@@ -54,8 +54,8 @@ def make(root: str, scene: str, task: str = "PointNav", variant: str = "rgb", **
                           checkout_root=CHECKOUTS, **kw)
 
 
-def expert_table(root: str, scene: str, episodes: int) -> tuple:
-    env = make(root, scene, training=False)
+def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
+    env = make(root, scene, training=False, reward=RewardConfig(max_steps=max_steps))
     expert, records = PurePursuitExpert(), []
     for seed in range(episodes):
         env.reset(seed=seed)
@@ -65,6 +65,9 @@ def expert_table(root: str, scene: str, episodes: int) -> tuple:
             _, _, term, trunc, info = env.step(expert.act(env))
             done = term or trunc
         records.append(info["episode"])
+        e = info["episode"]
+        print(f"  seed {seed}: {e.end}, {e.steps} steps, {e.path_length:.1f} / {e.shortest_length:.1f} m, "
+              f"{e.collision_events} collisions", flush=True)
     env.close()
     return summarize(records)
 
@@ -83,9 +86,12 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[f
         _, _, term, trunc, _ = env.step(expert.act(env))
         total += time.perf_counter() - t0
         done_steps += 1
-        if term or trunc:
+        if term or trunc:  # reset time stays out of the per-part figures too
+            before = dict(u.timings)
             env.reset(seed=seed)
             expert.reset(env)
+            u.timings.clear()
+            u.timings.update(before)
             seed += 1
     parts = {k: 1e3 * u.timings.get(k, 0.0) / done_steps for k in PARTS}
     parts["other"] = 1e3 * total / done_steps - sum(parts.values())
@@ -100,6 +106,8 @@ def main() -> None:
     ap.add_argument("--registry", default=None)
     ap.add_argument("--scene", default=None)
     ap.add_argument("--skip-gt", action="store_true")
+    ap.add_argument("--max-steps", type=int, default=600,
+                    help="expert episodes: step limit (the env default is the paper's 3000)")
     args = ap.parse_args()
     numba.set_num_threads(1)
     print(hardware_line())
@@ -112,12 +120,13 @@ def main() -> None:
         tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-envs-"))
         for root, sid in gt_registry(tmp, (75_000, 200_000)):
             scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
-    print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes")
+    print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes, "
+          f"limit {args.max_steps} steps")
     print("| scene | SR | SPL | Cost | SNS |\n|---|---|---|---|---|")
     for root, sid, label in scenes:
         if "200k" in sid:
             continue  # same street as the 75k bundle: the expert does not look at the splats
-        s = expert_table(root, sid, args.episodes)
+        s = expert_table(root, sid, args.episodes, args.max_steps)
         print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} |", flush=True)
     print(f"\nenv steps/s on one core ({args.steps} steps, expert actions, training mode), "
           "ms per step by part")

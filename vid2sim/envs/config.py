@@ -6,8 +6,8 @@ Constants and where they come from:
   we follow the paper (yaw rate = v / L x tan(delta)).
 - Top speed 1.0 m/s: the official agent's speed = move x 1 m/s with move clamped to [0, 1]
   (no reverse); a delivery robot's sidewalk speed.
-- Footprint: a 0.9 m x 0.6 m x 0.6 m box (length x width x height), centred on the robot's
-  reference point (rear-axle midpoint + half the wheelbase), 0.05 m above the ground.
+- Footprint: a 0.9 m x 0.6 m x 0.6 m box (length x width x height) centred on the bicycle
+  model's reference point, from 0.15 m to 0.75 m above the ground.
 - Camera: at the front of the box, 0.65 m above the ground, looking forward, level. The paper
   gives no intrinsics, only the 1280x720 sensor; we use Unity's default 60 deg vertical field
   of view at 1280x720 (fx = fy = 623.5 px), scaled to 128x72 (fx = fy = 62.35, cx = 64, cy = 36).
@@ -38,7 +38,8 @@ class RobotConfig:
     length: float = 0.9  # m, footprint box
     width: float = 0.6  # m
     height: float = 0.6  # m
-    ground_clearance: float = 0.05  # m, box bottom above z = 0
+    ground_clearance: float = 0.15  # m, box bottom above z = 0 (kerbs and ground-level mesh
+    # remnants below it are the walkable map's business, as the factory's 0.1 m obstacle floor)
 
     @property
     def max_steer(self) -> float:

@@ -38,16 +38,17 @@ from vid2sim.envs.camera import Jitter, intrinsics, world_to_camera
 from vid2sim.envs.config import EnvConfig
 from vid2sim.envs.episodes import Episode, sample_episode
 from vid2sim.envs.metrics import EpisodeRecord
-from vid2sim.envs.physics import RobotState
+from vid2sim.envs.physics import CONTACT_EPS, RobotState
 from vid2sim.envs.planning import path_length
 from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.reward import RewardTerms, StepOutcome, reward
-from vid2sim.envs.scenes import resolve_scene_ids
+from vid2sim.envs.scenes import SceneError, resolve_scene_ids
 from vid2sim.envs.world import SceneWorld, build_world
 from vid2sim.registry import Registry
 
 TASKS = ("pointnav", "socialnav")
 MAX_LOADED_SCENES = 4
+START_TRIES = 32
 PARTS = ("render", "physics", "obstacles", "pedestrians", "augment", "reward")
 
 
@@ -106,7 +107,7 @@ class NavEnv(gym.Env):
             self.actors.remove()
         self.world = self._world(scene_id)
         c = self.config
-        self.episode = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id)
+        self.episode = self._sample_free_start(rng, scene_id)
         ep = self.episode
         lo, hi = c.episode.pedestrians
         peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
@@ -115,7 +116,6 @@ class NavEnv(gym.Env):
         self.shortest = path_length(self.actors.expert_path)
         self.augmenter.reset(rng)
         self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
-        self.world.physics.place(self.state.x, self.state.y, self.state.yaw)
         self.jitter = Jitter.sample(c.camera, rng) if c.use_jitter else Jitter.none()
         self.t = 0.0
         self.steps = 0
@@ -129,6 +129,17 @@ class NavEnv(gym.Env):
         self.frames = deque([frame] * c.frame_stack, maxlen=c.frame_stack)
         self.vectors = deque([vec] * c.frame_stack, maxlen=c.frame_stack)
         return self._obs(), self._info(None)
+
+    def _sample_free_start(self, rng: np.random.Generator, scene_id: str) -> Episode:
+        """An episode whose start pose does not touch the collision mesh (places the robot)."""
+        c, phys = self.config, self.world.physics
+        for _ in range(START_TRIES):
+            ep = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id)
+            phys.place(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
+            if phys.depth <= CONTACT_EPS:
+                return ep
+        raise SceneError("no_free_start", f"scene {scene_id!r}: {START_TRIES} sampled starts on the "
+                         "walkable map all touch the collision mesh")
 
     def step(self, action):
         if self.episode is None:

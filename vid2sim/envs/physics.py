@@ -1,8 +1,9 @@
 """pybullet (DIRECT) world: the scene's collision mesh, a ground plane and the robot's footprint box.
 
 The robot is kinematic: each 50 Hz substep proposes the bicycle model's next pose, moves the
-box there and asks pybullet for penetrating contacts with anything but the ground. A blocked
-move is undone (the robot stops at the obstacle) and reported as a collision. Nothing here is
+box there and asks pybullet for penetrating contacts with anything but the ground. A move that
+deepens the penetration is undone (the robot stops at the obstacle); one that keeps or reduces
+it is allowed (sliding along, or turning away from, what it touches); both count as contact. Nothing here is
 ever drawn: the camera sees splats, pybullet only answers contacts.
 """
 
@@ -18,6 +19,7 @@ from vid2sim.envs.config import RobotConfig
 from vid2sim.envs.scenes import MeshData
 
 CONTACT_EPS = 1e-3  # m of penetration that counts as touching
+DEPTH_TOL = 1e-4  # m: a move that deepens the penetration by more than this is blocked
 
 
 @dataclass
@@ -50,29 +52,37 @@ class PhysicsWorld:
         box = pb.createCollisionShape(pb.GEOM_BOX, halfExtents=half, physicsClientId=c)
         self.robot_id = pb.createMultiBody(0, box, basePosition=[0, 0, self._z()], physicsClientId=c)
         self.ignore = {self.robot_id, self.ground_id}
+        self.depth = 0.0  # penetration at the current pose
 
     def _z(self) -> float:
         return self.robot_conf.ground_clearance + self.robot_conf.height / 2
 
     def place(self, x: float, y: float, yaw: float) -> None:
+        """Put the robot at a pose (episode start) and record its penetration there."""
+        self._move(x, y, yaw)
+        self.depth = self.contacts()[1]
+
+    def _move(self, x: float, y: float, yaw: float) -> None:
         quat = pb.getQuaternionFromEuler([0.0, 0.0, yaw])
         pb.resetBasePositionAndOrientation(self.robot_id, [x, y, self._z()], quat,
                                            physicsClientId=self.client)
 
-    def contacts(self) -> list[int]:
-        """Body ids (not robot, not ground) penetrating the robot box at its current pose.
+    def contacts(self) -> tuple[list[int], float]:
+        """(body ids penetrating the robot box, deepest penetration in m) at its current pose.
 
         Static-static pairs get no contact manifold in Bullet, so this asks for closest points
         (negative distance = penetration) with every body whose AABB overlaps the robot's."""
         c = self.client
         lo, hi = pb.getAABB(self.robot_id, physicsClientId=c)
         near = {b for b, _ in (pb.getOverlappingObjects(lo, hi, physicsClientId=c) or ())}
-        hit = []
+        hit, depth = [], 0.0
         for body in sorted(near - self.ignore):
             pts = pb.getClosestPoints(self.robot_id, body, 0.0, physicsClientId=c)
-            if any(p[8] < -CONTACT_EPS for p in pts):
+            d = max((-p[8] for p in pts), default=0.0)
+            if d > CONTACT_EPS:
                 hit.append(body)
-        return hit
+                depth = max(depth, d)
+        return hit, depth
 
     def step(self, state: RobotState, speed: float, steer: float, dt: float) -> tuple[RobotState, list[int]]:
         """One substep of the kinematic bicycle; returns (new state, bodies hit). Blocked moves stay."""
@@ -80,11 +90,12 @@ class PhysicsWorld:
         yaw = state.yaw + speed / L * math.tan(steer) * dt
         mid = 0.5 * (state.yaw + yaw)
         nx, ny = state.x + speed * math.cos(mid) * dt, state.y + speed * math.sin(mid) * dt
-        self.place(nx, ny, yaw)
-        hit = self.contacts()
-        if hit:
-            self.place(state.x, state.y, state.yaw)
+        self._move(nx, ny, yaw)
+        hit, depth = self.contacts()
+        if hit and depth > self.depth + DEPTH_TOL:  # pushing further in: blocked, undone
+            self._move(state.x, state.y, state.yaw)
             return RobotState(state.x, state.y, state.yaw, 0.0, steer), hit
+        self.depth = depth  # free, or sliding / backing out of a contact
         return RobotState(nx, ny, yaw, speed, steer), hit
 
     def close(self) -> None:
