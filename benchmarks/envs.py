@@ -30,6 +30,7 @@ from vid2sim.envs.nav_env import PARTS
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
 from vid2sim.registry import Registry
 
+CHECKOUTS = Path(tempfile.mkdtemp(prefix="vid2sim-bench-checkouts-"))
 SPEED_RUNS = (("PointNav", "rgb"), ("PointNav", "depth"), ("SocialNav", "rgb"))
 
 
@@ -50,7 +51,7 @@ def gt_registry(root: Path, splat_counts: tuple[int, ...]) -> list[tuple[str, st
 
 def make(root: str, scene: str, task: str = "PointNav", variant: str = "rgb", **kw) -> gymnasium.Env:
     return gymnasium.make(f"vid2sim/{task}-v0", registry=root, scenes=scene, variant=variant,
-                          checkout_root=Path(tempfile.gettempdir()) / "vid2sim-bench-checkouts", **kw)
+                          checkout_root=CHECKOUTS, **kw)
 
 
 def expert_table(root: str, scene: str, episodes: int) -> tuple:

@@ -13,7 +13,8 @@ import pybullet as pb
 
 from vid2sim.envs.compositing import composite
 from vid2sim.envs.obstacles import ObstacleSet, Placement, make_obstacle
-from vid2sim.envs.planning import Grid, GridPlanner
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.envs.raster import rasterize
 
 W, H = 128, 72
@@ -39,7 +40,7 @@ class GridNavEnv(gym.Env):
     def __init__(self, max_steps: int = 12, render_mode: str | None = "rgb_array") -> None:
         grid = np.ones((60, 100), np.uint8)
         grid[25:35, 40:60] = 0
-        self.grid = Grid(grid, np.array([0.0, 0.0]), 0.1)
+        self.grid = WalkableGrid(grid, np.array([0.0, 0.0]), 0.1)
         self.planner = GridPlanner(self.grid)
         self.max_steps, self.render_mode = max_steps, render_mode
         self.observation_space = gym.spaces.Dict({

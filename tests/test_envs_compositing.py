@@ -2,12 +2,18 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
+import pybullet as pb
 import pytest
 import torch
 import trimesh
 
 from vid2sim.envs.compositing import composite
+from vid2sim.envs.pedestrians import Crowd
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.envs.raster import rasterize
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
@@ -19,6 +25,7 @@ K = np.array([[40.0, 0.0, 32.0], [0.0, 40.0, 20.0], [0.0, 0.0, 1.0]])
 W2C = np.array([[0, -1, 0, 0], [0, 0, -1, 0], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
 
 
+@functools.lru_cache(maxsize=1)
 def _splat_wall(x: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
     """Render a grey Gaussian wall at world x = `x` with the torch splat backend."""
     ys, zs = np.meshgrid(np.linspace(-5, 5, 60), np.linspace(-3, 3, 36))
@@ -55,6 +62,26 @@ def test_cone_in_front_of_wall_drawn_behind_hidden(cone_x: float, visible: bool)
     else:
         assert not orange.any()
         assert np.allclose(depth[cone_px], wall_depth[cone_px])
+
+
+@pytest.mark.parametrize("person_x, visible", [(3.0, True), (7.0, False)])
+def test_pedestrian_in_front_of_wall_drawn_behind_hidden(person_x: float, visible: bool) -> None:
+    wall_rgb, wall_depth = _splat_wall()
+    cid = pb.connect(pb.DIRECT)
+    planner = GridPlanner(WalkableGrid(np.ones((40, 100), np.uint8), np.array([0.0, -2.0]), 0.1))
+    crowd = Crowd(planner, 1, np.random.default_rng(0), cid)
+    crowd.walkers[0].xy = np.array([person_x, 0.0])
+    crowd.walkers[0].yaw = 0.0  # walking away from the camera: shoulders across the view
+    p_rgb, p_depth = crowd.draw(K, W2C, W, H)
+    pb.disconnect(cid)
+    person = np.isfinite(p_depth)
+    assert person.sum() > 12
+    rgb, depth = composite(wall_rgb, wall_depth, p_rgb, p_depth)
+    if visible:
+        assert np.array_equal(rgb[person], p_rgb[person])
+    else:
+        assert np.array_equal(rgb[person], wall_rgb[person])
+        assert np.allclose(depth[person], wall_depth[person])
 
 
 def test_empty_pixels_of_either_layer_never_win() -> None:

@@ -7,7 +7,8 @@ import pybullet as pb
 import pytest
 
 from vid2sim.envs.pedestrians import HEIGHT_RANGE, SPEED_RANGE, Crowd
-from vid2sim.envs.planning import Grid, GridPlanner
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 
 K = np.array([[64.0, 0.0, 64.0], [0.0, 64.0, 36.0], [0.0, 0.0, 1.0]])
 
@@ -16,7 +17,7 @@ def _plaza() -> GridPlanner:
     """12 x 12 m walkable square (0.1 m cells) with a 4 x 4 m block in the middle."""
     grid = np.ones((120, 120), np.uint8)
     grid[40:80, 40:80] = 0
-    return GridPlanner(Grid(grid, np.array([0.0, 0.0]), 0.1))
+    return GridPlanner(WalkableGrid(grid, np.array([0.0, 0.0]), 0.1))
 
 
 @pytest.fixture()
@@ -90,3 +91,29 @@ def test_person_is_drawn_to_scale_and_limbs_swing(client: int) -> None:
     w.phase = -np.pi / 2
     rgb_b, _ = crowd.draw(K, w2c, 128, 72)
     assert (rgb_a != rgb_b).any()
+
+
+def test_people_yield_to_the_robot_then_walk_on(client: int) -> None:
+    crowd = Crowd(_plaza(), 1, np.random.default_rng(5), client)
+    w = crowd.walkers[0]
+    crowd.step(0.2)  # walking: yaw now points along its path
+    ahead = w.xy + 0.6 * np.array([np.cos(w.yaw), np.sin(w.yaw)])
+    before = w.xy.copy()
+    for _ in range(5):  # 1 s with the robot 0.6 m ahead: waits
+        crowd.step(0.2, robot_xy=ahead)
+    assert np.array_equal(w.xy, before)
+    for _ in range(8):  # after MAX_WAIT it walks on
+        crowd.step(0.2, robot_xy=ahead)
+    assert not np.array_equal(w.xy, before)
+    behind = w.xy - 0.6 * np.array([np.cos(w.yaw), np.sin(w.yaw)])
+    before = w.xy.copy()
+    crowd.step(0.2, robot_xy=behind)  # a robot behind does not stop anyone
+    assert not np.array_equal(w.xy, before)
+
+
+def test_vectorised_mesh_matches_the_per_part_reference(client: int) -> None:
+    crowd, _ = _walk(6, client, steps=7)
+    verts, faces, colors = crowd.mesh_arrays()
+    ref = np.concatenate([v for w in crowd.walkers for v in w.world_vertices()])  # [V, 3]
+    assert np.allclose(verts, ref, atol=1e-5)
+    assert faces.max() == len(verts) - 1 and len(colors) == len(faces)

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from envs_grid_nav import GridNavEnv
-from vid2sim.envs.recording import PANEL_H, RecordEpisode, record_episodes
+from vid2sim.envs.recording import MAP_W, PANEL_H, RecordEpisode, TopdownMap, record_episodes
 
 
 def _frames(path) -> list[np.ndarray]:
@@ -79,3 +79,17 @@ def test_record_episodes_runs_an_agent_to_the_end(tmp_path) -> None:
     assert [p.name for p in paths] == ["episode-0.mp4", "episode-1.mp4"]
     n = len(_frames(paths[0]))
     assert 20 < n < 41  # 8 m at 0.3 m per step: the episode ends at the goal, before the limit
+
+
+def test_map_zooms_on_the_episode_of_a_long_street() -> None:
+    grid = np.ones((25, 450), np.uint8)  # 45 m x 2.5 m street
+    ends = np.array([[10.0, 1.0], [20.0, 1.5]])
+    whole = TopdownMap(grid, (0.0, 0.0), 0.1)
+    zoom = TopdownMap(grid, (0.0, 0.0), 0.1, focus=ends)
+    for m in (whole, zoom):
+        assert m.base.shape == (PANEL_H, MAP_W, 3)
+        p = m.px(ends)
+        assert ((p >= 0) & (p < [MAP_W, PANEL_H])).all()
+        assert p[0, 1] > p[1, 1]  # +y is up on the map
+    span = lambda m: np.diff(m.px(ends)[:, 0])[0]  # noqa: E731
+    assert span(zoom) > 1.5 * span(whole) and span(whole) > 100

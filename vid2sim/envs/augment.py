@@ -40,7 +40,7 @@ class AugmentConfig:
     fog_color: tuple[int, int, int] = (200, 203, 208)
     rain_prob: float = 0.15
     snow_prob: float = 0.1
-    particles: tuple[int, int] = (150, 600)  # per frame at 128x72 (scaled with image area)
+    particles: tuple[int, int] = (80, 300)  # per frame at 128x72 (scaled with image area)
     particle_depth: tuple[float, float] = (0.3, 10.0)  # m
 
 
@@ -118,7 +118,7 @@ def particles(img: np.ndarray, depth: np.ndarray, rng: np.random.Generator, coun
         k = np.arange(int(np.ceil(length.max())))  # [L]
         on = k[None] < length[:, None]  # [N, L]
         us, vs = u0[:, None] + wind * k[None], v0[:, None] + k[None]
-        color, alpha = np.array([210, 215, 225], np.float32), 0.45
+        color, alpha = np.array([210, 215, 225], np.float32), 0.35
     elif kind == "snow":
         r = np.clip(1.2 / z * H / 72, 0, 2).round().astype(int)  # px radius
         offs = np.array([[0, 0], [1, 0], [-1, 0], [0, 1], [0, -1]])  # [5, 2]

@@ -84,7 +84,9 @@ class RewardConfig:
 class EpisodeConfig:
     geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, the paper
     min_geodesic: float = 5.0  # m, the paper's real-world range; smaller maps are refused
-    clearance: float = 0.45  # m, planner inflation (robot half-width 0.3 + tracking margin) for episodes, expert
+    # m kept from blocked cells by episodes and the expert (robot half-width 0.3 + tracking
+    # margin), minus what the factory already inflated the map by (its robot_radius_m)
+    clearance: float = 0.45
     start_yaw_noise_deg: float = 15.0
     pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS

@@ -2,8 +2,11 @@
 
 Each person walks the planner's path to a random free point at a speed drawn from
 U(SPEED_RANGE) (human walking speeds, ~1.0-1.6 m/s; MetaUrban's pedestrians walk at ~1 m/s
-and re-plan on arrival) and picks a new goal and a new path when it arrives. There is no
-local avoidance between people (MetaUrban adds ORCA; not done here).
+and re-plan on arrival) and picks a new goal and a new path when it arrives. Local behaviour
+is a simple yield rule, not ORCA (MetaUrban's choice): a person waits while the robot or
+another person is within YIELD_DISTANCE m ahead (within YIELD_ANGLE of the walking
+direction), for at most MAX_WAIT s, then walks on (so two people facing each other do not
+wait forever).
 
 Body: a simple articulated figure (legs and arms swing with the gait, torso, head), drawn by
 the env rasteriser, 1.55-1.90 m tall. Physics: one kinematic pybullet capsule per person
@@ -29,6 +32,9 @@ HEIGHT_RANGE = (1.55, 1.90)  # m
 BODY_RADIUS = 0.25  # m, collision capsule
 STRIDE = 1.4  # m per gait cycle (two steps)
 SWING = 0.45  # rad, peak leg swing
+YIELD_DISTANCE = 0.9  # m
+YIELD_ANGLE = math.radians(50.0)
+MAX_WAIT = 2.0  # s
 SKIN = ((230, 190, 160), (190, 140, 100), (120, 80, 55), (80, 55, 40))
 LIGHT_DIR = np.array([0.35, 0.25, 0.9]) / np.linalg.norm([0.35, 0.25, 0.9])
 
@@ -88,6 +94,7 @@ class _Walker:
         self.arc: Optional[np.ndarray] = None  # [K]
         self.s = 0.0
         self.phase = 0.0
+        self.waited = 0.0  # s spent yielding in a row
 
     def set_path(self, path: np.ndarray) -> None:
         self.path = path
@@ -135,6 +142,7 @@ class Crowd:
         self.goals_reached = 0
         self.body_ids = [self._add_body(w) for w in self.walkers]
         self._faces, self._colors = self._static_arrays()
+        self._pack()
         for w in self.walkers:
             self._new_path(w)
         self._sync_bodies()
@@ -184,13 +192,46 @@ class Crowd:
             return np.zeros((0, 3), np.int32), np.zeros((0, 3), np.uint8)
         return np.concatenate(faces).astype(np.int32), np.concatenate(colors)
 
-    def step(self, dt: float) -> None:
-        """Walk everyone dt seconds; new goal and path on arrival; move the capsules."""
-        for w in self.walkers:
+    def _pack(self) -> None:
+        """Per-vertex arrays of everyone's rest mesh for the vectorised pose in mesh_arrays."""
+        local, pivot, sign, owner = [], [], [], []
+        for k, w in enumerate(self.walkers):
+            for p in w.parts:
+                n = len(p.mesh.vertices)
+                local.append(np.asarray(p.mesh.vertices))
+                pivot.append(np.broadcast_to(p.pivot if p.pivot is not None else np.zeros(3), (n, 3)))
+                sign.append(np.full(n, p.swing_sign if p.pivot is not None else 0.0))
+                owner.append(np.full(n, k))
+        cat = (lambda xs, shape: np.concatenate(xs) if xs else np.zeros(shape))  # noqa: E731
+        self._local, self._pivot = cat(local, (0, 3)), cat(pivot, (0, 3))  # [V, 3]
+        self._sign, self._owner = cat(sign, (0,)), cat(owner, (0,)).astype(np.int64)  # [V]
+
+    def step(self, dt: float, robot_xy: Optional[Sequence[float]] = None) -> None:
+        """Walk everyone dt seconds (yielding to the robot and to each other); new goal and
+        path on arrival; move the capsules."""
+        others = self.positions  # [P, 2] before anyone moves
+        if robot_xy is not None:
+            others = np.concatenate([others, np.asarray(robot_xy, np.float64)[None, :2]])
+        for k, w in enumerate(self.walkers):
+            blocked = self._blocked(k, w, others)
+            if blocked and w.waited < MAX_WAIT:
+                w.waited += dt
+                continue
+            if not blocked:  # after MAX_WAIT, walk on until the way is clear again
+                w.waited = 0.0
             if w.advance(w.speed * dt):
                 self.goals_reached += 1
                 self._new_path(w)
         self._sync_bodies()
+
+    @staticmethod
+    def _blocked(k: int, w: _Walker, others: np.ndarray) -> bool:
+        """True when someone other than walker k stands within the yield cone ahead of it."""
+        d = np.delete(others, k, axis=0) - w.xy  # [M, 2]
+        dist = np.hypot(d[:, 0], d[:, 1])
+        ahead = d @ np.array([math.cos(w.yaw), math.sin(w.yaw)])  # [M]
+        close = (dist < YIELD_DISTANCE) & (dist > 1e-6)
+        return bool((close & (ahead > dist * math.cos(YIELD_ANGLE))).any())
 
     @property
     def positions(self) -> np.ndarray:
@@ -203,10 +244,22 @@ class Crowd:
         return np.array([w.yaw for w in self.walkers], np.float64)
 
     def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Everyone's world mesh: vertices [V, 3] f32, faces [F, 3] i32, colours [F, 3] u8."""
+        """Everyone's world mesh: vertices [V, 3] f32, faces [F, 3] i32, colours [F, 3] u8.
+
+        Vectorised over all vertices; `_Walker.world_vertices` is the per-part reference."""
         if not self.walkers:
             return np.zeros((0, 3), np.float32), self._faces, self._colors
-        verts = np.concatenate([v for w in self.walkers for v in w.world_vertices()])
+        phase = np.array([w.phase for w in self.walkers])[self._owner]  # [V]
+        yaw = np.array([w.yaw for w in self.walkers])[self._owner]
+        xy = self.positions[self._owner]  # [V, 2]
+        ang = self._sign * SWING * np.sin(phase)
+        c, s = np.cos(ang), np.sin(ang)
+        d = self._local - self._pivot  # [V, 3] swing about the joint's y axis
+        x = c * d[:, 0] + s * d[:, 2] + self._pivot[:, 0]
+        y = d[:, 1] + self._pivot[:, 1]
+        z = -s * d[:, 0] + c * d[:, 2] + self._pivot[:, 2]
+        cy, sy = np.cos(yaw), np.sin(yaw)
+        verts = np.stack([cy * x - sy * y + xy[:, 0], sy * x + cy * y + xy[:, 1], z], 1)
         return verts.astype(np.float32), self._faces, self._colors
 
     def draw(self, K: np.ndarray, world_to_cam: np.ndarray, width: int, height: int
@@ -219,3 +272,4 @@ class Crowd:
             pb.removeBody(b, physicsClientId=self.client_id)
         self.body_ids, self.walkers = [], []
         self._faces, self._colors = self._static_arrays()
+        self._pack()

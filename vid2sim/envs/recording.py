@@ -22,35 +22,56 @@ import gymnasium as gym
 import numpy as np
 
 PANEL_H = 288  # px: height of both panels
+MAP_W = 512  # px: width of the map panel
 BGR = {"free": (205, 205, 205), "blocked": (60, 60, 60), "planned": (220, 120, 30),
        "taken": (40, 190, 40), "obstacle": (20, 120, 250), "pedestrian": (200, 40, 200),
        "goal": (30, 30, 230), "robot": (0, 220, 255)}
 
 
 class TopdownMap:
-    """Draws topdown_state dicts on a fixed-size map image of one walkable grid."""
+    """Draws topdown_state dicts on a fixed-size map image of one walkable grid.
 
-    def __init__(self, grid: np.ndarray, origin, resolution: float, height: int = PANEL_H) -> None:
+    The grid is cropped to the `focus` points (the episode: planned path, robot, goal) or,
+    without them, to the walkable cells, plus CROP_MARGIN m, widened towards the panel's
+    aspect where the grid allows, and fitted (aspect kept) into a PANEL_H x MAP_W box."""
+
+    CROP_MARGIN = 3.0  # m
+
+    def __init__(self, grid: np.ndarray, origin, resolution: float, height: int = PANEL_H,
+                 width: int = MAP_W, focus: Optional[np.ndarray] = None) -> None:
         g = np.asarray(grid) > 0  # [Hg, Wg], row 0 at the lowest y
-        self.origin = np.asarray(origin, np.float64).reshape(2)
         self.resolution = float(resolution)
-        self.scale = height / g.shape[0]  # px per cell
-        width = max(2, int(round(g.shape[1] * self.scale)) // 2 * 2)
-        base = np.where(g[::-1, :, None], BGR["free"], BGR["blocked"]).astype(np.uint8)
-        self.base = cv2.resize(base, (width, height), interpolation=cv2.INTER_NEAREST)
+        origin = np.asarray(origin, np.float64).reshape(2)
+        if focus is not None and len(focus):
+            cells = np.floor((np.asarray(focus, np.float64).reshape(-1, 2) - origin) / self.resolution)
+            rows, cols = cells[:, 1].astype(int), cells[:, 0].astype(int)
+        else:
+            rows, cols = np.nonzero(g)
+        margin = int(round(self.CROP_MARGIN / self.resolution))
+        r0, r1, c0, c1 = _crop(g.shape, rows, cols, margin, width / height)
+        g = g[r0:r1, c0:c1]
+        self.origin = origin + np.array([c0, r0]) * self.resolution
+        self.scale = min(height / g.shape[0], width / g.shape[1])  # px per cell
+        h, w = max(1, int(g.shape[0] * self.scale)), max(1, int(g.shape[1] * self.scale))
+        self.offset = np.array([(width - w) // 2, (height - h) // 2])  # px (x, y) of the grid
+        self.grid_h = h
+        img = np.where(g[::-1, :, None], BGR["free"], BGR["blocked"]).astype(np.uint8)
+        self.base = np.full((height, width, 3), BGR["blocked"], np.uint8)
+        self.base[self.offset[1]:self.offset[1] + h, self.offset[0]:self.offset[0] + w] = cv2.resize(
+            img, (w, h), interpolation=cv2.INTER_NEAREST)
 
     def px(self, xy: np.ndarray) -> np.ndarray:
         """World points [N, 2] -> map pixels [N, 2] int (x right, y down = -world y)."""
         xy = np.asarray(xy, np.float64).reshape(-1, 2)
         cells = (xy - self.origin) / self.resolution  # [N, 2] (col, row) continuous
-        u = cells[:, 0] * self.scale
-        v = self.base.shape[0] - cells[:, 1] * self.scale
+        u = self.offset[0] + cells[:, 0] * self.scale
+        v = self.offset[1] + self.grid_h - cells[:, 1] * self.scale
         return np.round(np.stack([u, v], 1)).astype(np.int32)
 
     def draw(self, state: dict[str, Any]) -> np.ndarray:
         """The map [PANEL_H, W, 3] BGR u8 with paths, obstacles, people, goal and robot."""
         img = self.base.copy()
-        r = max(2, int(round(0.3 / self.resolution * self.scale)))
+        r = max(3, int(round(0.3 / self.resolution * self.scale)))
         for key, color in (("planned_path", "planned"), ("path", "taken")):
             pts = np.asarray(state.get(key, np.zeros((0, 2))), np.float64).reshape(-1, 2)
             if len(pts) >= 2:
@@ -68,6 +89,28 @@ class TopdownMap:
         tri = np.array([[1.6, 0.0], [-1.0, 0.9], [-1.0, -0.9]]) * 0.35  # m, robot frame
         world = xy + tri @ np.array([[c, s], [-s, c]])
         cv2.fillPoly(img, [self.px(world)], BGR["robot"], cv2.LINE_AA)
+
+
+def _crop(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, margin: int, aspect: float
+          ) -> tuple[int, int, int, int]:
+    """Bounds (r0, r1, c0, c1) of the cells rows/cols plus margin, the short side widened
+    towards width/height = aspect, all clipped to the grid `shape`."""
+    if len(rows) == 0:
+        return 0, shape[0], 0, shape[1]
+    r0, r1 = rows.min() - margin, rows.max() + margin + 1
+    c0, c1 = cols.min() - margin, cols.max() + margin + 1
+    h, w = r1 - r0, c1 - c0
+    if w < aspect * h:
+        grow = int(aspect * h - w) // 2
+        c0, c1 = c0 - grow, c1 + grow
+    else:
+        grow = int(w / aspect - h) // 2
+        r0, r1 = r0 - grow, r1 + grow
+    r0, c0 = max(r0, 0), max(c0, 0)
+    r1, c1 = min(r1, shape[0]), min(c1, shape[1])
+    if r1 <= r0 or c1 <= c0:
+        return 0, shape[0], 0, shape[1]
+    return int(r0), int(r1), int(c0), int(c1)
 
 
 def side_by_side(view_rgb: np.ndarray, map_bgr: np.ndarray) -> np.ndarray:
@@ -111,8 +154,10 @@ class RecordEpisode(gym.Wrapper):
         self.episode += 1
         if self.episode_trigger(self.episode):
             state = self.env.unwrapped.topdown_state()
+            focus = [np.asarray(state[k], np.float64).reshape(-1, 2)
+                     for k in ("planned_path", "robot_xy", "goal") if state.get(k) is not None]
             self._map = TopdownMap(state["grid"], state.get("origin", (0.0, 0.0)),
-                                   state.get("resolution", 0.1))
+                                   state.get("resolution", 0.1), focus=np.concatenate(focus))
             self._write(obs, state)
         return obs, info
 

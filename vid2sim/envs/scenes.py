@@ -18,6 +18,7 @@ from plyfile import PlyData
 
 from vid2sim.registry import Registry
 from vid2sim.formats.bundle import COLLISION_PLY
+from vid2sim.formats.scene import SCENE_JSON, read_scene_json
 from vid2sim.formats.splat_ply import SPLATS_PLY
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid, load_walkable
 from vid2sim.splats import GaussianModel, read_ply
@@ -50,6 +51,15 @@ class SceneAssets:
     collision: MeshData
     walkable: WalkableGrid
     visual_mesh_path: Optional[Path]
+    walkable_inflation: float = 0.0  # m the factory already shrank the walkable map by
+
+
+def walkable_inflation(scene_json: dict) -> float:
+    """Robot radius the factory inflated obstacles by (pipeline.config.walkable.robot_radius_m);
+    0 for maps that are not inflated (the synthetic street's ground truth)."""
+    conf = scene_json.get("pipeline", {}).get("config", {})
+    walk = conf.get("walkable", {}) if isinstance(conf, dict) else {}
+    return float(walk.get("robot_radius_m", 0.0)) if isinstance(walk, dict) else 0.0
 
 
 def resolve_scene_ids(registry: Registry, source: Union[str, Sequence[str]]) -> list[str]:
@@ -92,7 +102,8 @@ def load_scene(registry: Registry, scene_id: str, dest_root: Optional[Path] = No
     return SceneAssets(scene_id=scene_id, bundle_dir=folder, splats=read_ply(folder / SPLATS_PLY),
                        collision=read_collision(folder / COLLISION_PLY),
                        walkable=load_walkable(folder / WALKABLE_NPZ),
-                       visual_mesh_path=visual if visual.is_file() else None)
+                       visual_mesh_path=visual if visual.is_file() else None,
+                       walkable_inflation=walkable_inflation(read_scene_json(folder / SCENE_JSON)))
 
 
 def read_collision(path: Path) -> MeshData:

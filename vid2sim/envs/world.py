@@ -33,7 +33,8 @@ def build_world(registry: Registry, scene_id: str, conf: EnvConfig,
     """Check out and load a scene; refuse it (SceneError) when it cannot host episodes."""
     assets = load_scene(registry, scene_id, checkout_root)
     walkable = GridPlanner(assets.walkable)
-    planner = GridPlanner(assets.walkable, clearance=conf.episode.clearance)
+    clearance = max(0.0, conf.episode.clearance - assets.walkable_inflation)
+    planner = GridPlanner(assets.walkable, clearance=clearance)
     span = geodesic_range(planner, conf.episode, scene_id)
     if conf.variant == "mesh-rgb":
         view: Union[SplatView, MeshView] = MeshView(

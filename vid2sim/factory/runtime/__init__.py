@@ -1,1 +1,2 @@
-"""Runtime: pipeline stage chain, Ray orchestrator, stage cache, progress, bundle assembly, demo."""
+"""Runtime: pipeline stage chain, Ray orchestrator, stage cache, progress, bundle assembly, demo,
+and the work store (local folder or object store) that stage folders live in."""

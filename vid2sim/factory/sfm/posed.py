@@ -12,6 +12,7 @@ Images live in `images_dir` (pinhole, undistorted) and masks in `masks_dir`
 from __future__ import annotations
 
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -37,6 +38,12 @@ class PosedFrame:
     K: np.ndarray  # [3, 3]
     cam_to_world: np.ndarray  # [4, 4] OpenCV axes
     split: str = "train"
+
+
+def portable_path(target: Path, folder: Path) -> str:
+    """`target` relative to `folder` (both resolved): stage folders are siblings under one clip
+    folder, so a relative path stays valid when the clip folder moves to another node's scratch."""
+    return os.path.relpath(Path(target).resolve(), Path(folder).resolve())
 
 
 @dataclass
@@ -83,8 +90,8 @@ class PosedClip:
         np.savez(folder / "points.npz", xyz=np.asarray(self.points_xyz, np.float64),
                  rgb=np.asarray(self.points_rgb, np.uint8))
         info = dict(self.frame_info)
-        info["images_dir"] = str(Path(self.images_dir).resolve())
-        info["masks_dir"] = str(Path(self.masks_dir).resolve()) if self.masks_dir else None
+        info["images_dir"] = portable_path(self.images_dir, folder)
+        info["masks_dir"] = portable_path(self.masks_dir, folder) if self.masks_dir else None
         (folder / "frame.json").write_text(json.dumps(info, indent=2))
         return folder
 
@@ -100,6 +107,6 @@ class PosedClip:
         pts = np.load(folder / "points.npz")
         info = json.loads((folder / "frame.json").read_text())
         masks = info.pop("masks_dir", None)
-        return cls(frames=frames, images_dir=Path(info.pop("images_dir")),
-                   masks_dir=Path(masks) if masks else None,
+        return cls(frames=frames, images_dir=folder / info.pop("images_dir"),
+                   masks_dir=folder / masks if masks else None,
                    points_xyz=pts["xyz"], points_rgb=pts["rgb"], frame_info=info)

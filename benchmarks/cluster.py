@@ -1,0 +1,104 @@
+"""Loopback cluster fan-out: N clips over 1 Ray node against 2 nodes, registry and work on S3.
+
+    .venv/bin/python benchmarks/cluster.py --clips 4
+
+Starts moto's S3 server and a Ray cluster on 127.0.0.1 (1 CPU per node, own temp and scratch
+dirs, token auth) for each node count, runs the back half (recon -> meshing -> bundle -> commit)
+of N synthetic clips from a separate driver process, and prints the wall time of each.
+What it can show: the work spreads over nodes through the object store, and the cost of the
+store round trips. What it cannot: a speed-up from more hardware, since both "nodes" share this
+machine's cores. Then a paper estimate for 1,000 ten-second clips on a named cloud instance from
+the per-stage times measured on this machine (README, GoPro clip, fast preset).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+# Measured per 10.5 s GoPro clip, fast preset, 2 vCPUs (README, benchmarks/pipeline.py gopro).
+STAGE_SECONDS = {"decode": 12, "masks": 4, "sfm": 59, "metric": 0.7, "recon": 132, "meshing": 16}
+INSTANCE = ("c6i.4xlarge", 16, 0.68)  # name, vCPUs, on-demand USD/hour (us-east-1)
+
+
+def drive(address: str, work_uri: str, registry_uri: str, clips: int, out: Path) -> None:
+    """Driver process: N clips' back half on the cluster; writes wall time and stage seconds."""
+    import ray
+    from test_cluster_two_nodes import _clip, _stages
+
+    from vid2sim.factory.runtime.object_store import ObjectStore
+    from vid2sim.factory.runtime.orchestrator import run_clips
+    from vid2sim.factory.runtime.pipeline import bundle_path
+    from vid2sim.registry import Registry
+
+    store, registry = ObjectStore(work_uri), Registry(registry_uri)
+    jobs = [_clip(out.parent, store, seed) for seed in range(1, clips + 1)]
+    ray.init(address=address, log_to_driver=False)
+    t0 = time.perf_counter()
+    results = run_clips(jobs, _stages(), on_clip_done=lambda s: registry.add(bundle_path(s.context)))
+    wall = time.perf_counter() - t0
+    ray.shutdown()
+    out.write_text(json.dumps({"wall_s": wall, "ok": sum(r.ok for r in results),
+                               "nodes": len({v for r in results for k, v in r.context.items()
+                                             if k.startswith("node:")}),
+                               "stage_s": [r.seconds for r in results]}))
+
+
+def measure(workers: int, clips: int, tmp: Path) -> dict:
+    from cluster_fixtures import ray_cluster, s3_server
+
+    with s3_server() as s3, ray_cluster(workers=workers, extra_env=s3.env) as cluster:
+        out = tmp / f"bench-{workers}.json"
+        subprocess.run([sys.executable, __file__, "--drive", cluster.address, s3.uri("work"),
+                        s3.uri("registry"), str(clips), str(out)], env=cluster.env, check=True)
+        return json.loads(out.read_text())
+
+
+def paper_estimate(clips: int = 1000) -> str:
+    """Throughput and cost of `clips` ten-second clips from the measured 2-vCPU stage times."""
+    name, vcpus, price = INSTANCE
+    per_clip = sum(STAGE_SECONDS.values()) * 10 / 10.5  # s on 2 vCPUs, scaled to 10 s of video
+    vcpu_hours = per_clip * 2 * clips / 3600
+    instance_hours = vcpu_hours / vcpus
+    return (f"paper estimate: {clips} x 10 s clips, fast preset: {per_clip:.0f} s per clip on 2 vCPUs "
+            f"-> {vcpu_hours:.0f} vCPU-hours -> {instance_hours:.1f} {name} instance-hours "
+            f"(~${instance_hours * price:.0f} on demand at ${price}/h); with 20 workers "
+            f"{instance_hours / 20 * 60:.0f} min wall, {8 * 20 * 3600 / per_clip:.0f} clips/hour "
+            f"(8 clips of 2 vCPUs per instance). Assumes stages scale like on this machine and "
+            f"S3 transfers are small next to SfM + recon.")
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--clips", type=int, default=4)
+    p.add_argument("--drive", nargs=5, metavar=("ADDRESS", "WORK", "REGISTRY", "CLIPS", "OUT"))
+    args = p.parse_args()
+    if args.drive:
+        a = args.drive
+        drive(a[0], a[1], a[2], int(a[3]), Path(a[4]))
+        return
+    import tempfile
+
+    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+          f"load {os.getloadavg()[0]:.1f}; command: .venv/bin/python benchmarks/cluster.py --clips {args.clips}")
+    with tempfile.TemporaryDirectory(prefix="v2sbench-") as tmp:
+        res = {n: measure(n - 1, args.clips, Path(tmp)) for n in (1, 2)}
+    for n, r in res.items():
+        print(f"{n} node(s), 1 CPU each: {args.clips} clips in {r['wall_s']:.1f} s "
+              f"({r['ok']} committed, stages ran on {r['nodes']} node(s))")
+    print(f"ratio 2 nodes / 1 node: {res[2]['wall_s'] / res[1]['wall_s']:.2f} "
+          "(both nodes share this machine's cores: shows spreading, not hardware scaling)")
+    print(paper_estimate())
+
+
+if __name__ == "__main__":
+    main()
