@@ -53,7 +53,7 @@ def main() -> None:
     init_ray(num_cpus=2)
     results = {}
     backends = {"DummyVecEnv": lambda: DummyVecEnv([s.make for s in specs]),
-                "SubprocVecEnv": lambda: SubprocVecEnv([s.make for s in specs], start_method="fork"),
+                "SubprocVecEnv": lambda: SubprocVecEnv([s.make for s in specs], start_method="spawn"),  # deltalake's tokio runtime is not fork-safe
                 "RayVecEnv 1 actor": lambda: RayVecEnv(specs, RayVecEnvConfig(n_actors=1)),
                 "RayVecEnv 2 actors": lambda: RayVecEnv(specs, RayVecEnvConfig(n_actors=2))}
     for name, make in backends.items():
