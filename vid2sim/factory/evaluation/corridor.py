@@ -21,15 +21,8 @@ from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.geometry_metrics import sample_surface
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
+from vid2sim.factory.geometry.walked_path import CorridorError, walked_path  # noqa: F401  (re-exported)
 from vid2sim.formats.walkable import WalkableGrid
-
-
-class CorridorError(ValueError):
-    """Bad input to the corridor check (reason names the problem)."""
-
-    def __init__(self, reason: str, detail: str = "") -> None:
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-        self.reason, self.detail = reason, detail
 
 
 @dataclass(frozen=True)
@@ -60,19 +53,6 @@ class CorridorReport:
 
     def to_dict(self) -> dict:
         return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in asdict(self).items()}
-
-
-def walked_path(camera_path: np.ndarray, step_m: float) -> np.ndarray:
-    """Camera positions [T, 3] resampled along the polyline every step_m: [S, 3]."""
-    path = np.asarray(camera_path, np.float64).reshape(-1, 3)
-    if len(path) == 0 or not np.all(np.isfinite(path)):
-        raise CorridorError("bad_camera_path", f"need finite [T, 3] positions, got {len(path)}")
-    seg = np.linalg.norm(np.diff(path[:, :2], axis=0), axis=1)  # [T-1] ground distance
-    s = np.concatenate([[0.0], np.cumsum(seg)])  # [T]
-    if s[-1] <= 0:
-        return path[:1].copy()
-    q = np.linspace(0.0, s[-1], int(np.ceil(s[-1] / step_m)) + 1)  # [S]
-    return np.stack([np.interp(q, s, path[:, k]) for k in range(3)], axis=1)
 
 
 def corridor_points_mask(points: np.ndarray, walked: np.ndarray, conf: CorridorConfig,

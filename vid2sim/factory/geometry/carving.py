@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.evaluation.corridor import walked_path
+from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
 
 

@@ -34,7 +34,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.evaluation.corridor import walked_path
+from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
