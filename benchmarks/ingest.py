@@ -50,7 +50,7 @@ def main() -> None:
     if not video.exists():
         sys.exit(f"{video} is absent")
     out = args.out or Path(tempfile.mkdtemp(prefix="vid2sim-ingest-"))
-    conf = replace(decode.DecodeConf(), fps=args.fps, workers=args.workers)
+    conf = replace(decode.DecodeConfig(), fps=args.fps, workers=args.workers)
     print(f"cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f}, fps {args.fps}, workers {args.workers}")
 
     samples, _ = timed("  read + sample (PyAV)", lambda: decode.sample_video(video, conf, None))
@@ -58,7 +58,7 @@ def main() -> None:
     blur = FaceBlurrer(conf.faces)
     timed("  face detection, 10 frames, 1 proc", lambda: [blur(s.image) for s in samples[:10]])
     d = timed("decode stage (total)", lambda: decode.main(conf, video, out / "decode"))
-    m = timed("masks stage (total)", lambda: masks.main(masks.MasksConf(), d, out / "masks"))
+    m = timed("masks stage (total)", lambda: masks.main(masks.MasksConfig(), d, out / "masks"))
     from vid2sim.factory.runtime.stage_cache import load_record
 
     print("decode summary:", load_record(d).summary)

@@ -9,26 +9,37 @@ eroded by the robot radius, i.e. valid robot-centre positions). `--noise` pertur
 
   .venv/bin/python benchmarks/meshing.py [--preset demo] [--every 4] [--scale 0.5] [--noise 0.01]
 
-`--from-splats WORKDIR` instead evaluates a pipeline run (`vid2sim demo` work folder: the clip
-under WORKDIR/clips/*/ with metric/ and recon/splats.ply, the GT under WORKDIR/synthetic/):
-renders the splats (SplatViewConfig defaults), meshes, builds the walkable map and reports
-the same figures; the metric frame is aligned to the GT frame by a similarity fit of the
-camera centres (matched by timestamp), the walkable grid by its xy translation.
+`--from-splats WORKDIR` instead evaluates a pipeline run (any work folder with a clip's
+metric/ and recon/splats.ply; a `vid2sim demo` folder also has the GT under WORKDIR/synthetic/):
+renders the splats once (SplatViewConfig defaults), meshes, builds the walkable map and reports
+the ground-truth-free corridor check (walked path on walkable cells, components, collision area
+in the body corridor) and, with GT, collision accuracy / completeness near the path, ground left
+and walkable IoU; the metric frame is aligned to the GT frame by a similarity fit of the camera
+centres (matched by timestamp), the walkable grid by its xy translation. `--ablation` meshes the
+same renders with every variant of VARIANTS and prints a markdown table.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
+from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import trimesh
 
-from vid2sim.factory.evaluation.geometry_metrics import (
-    chamfer_points, erode_walkable, grid_iou, sample_surface)
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import hardware_line  # noqa: E402  (benchmarks/common.py)
+
+from vid2sim.factory.evaluation.corridor import corridor_check  # noqa: E402
+from vid2sim.factory.geometry.carving import CarveConfig  # noqa: E402
+from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou  # noqa: E402
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
 from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street
@@ -58,7 +69,8 @@ def run(args) -> dict:
     W, H = int(round(conf.width * args.scale)), int(round(conf.height * args.scale))
     rend = RaycastRenderer(mesh)
     rng = np.random.default_rng(0)
-    mconf = MeshingConfig()
+    mconf = replace(MeshingConfig(), **VARIANTS[args.variant][0])
+    wconf = replace(WalkableConfig(), **VARIANTS[args.variant][1])
     views, gt_vis = [], []
     t0 = time.perf_counter()
     for c2w in T:
@@ -72,7 +84,6 @@ def run(args) -> dict:
     t0 = time.perf_counter()
     res = build_meshes(views, mconf)
     t_mesh = time.perf_counter() - t0
-    wconf = WalkableConfig()
     t0 = time.perf_counter()
     wm = walkable_map(res.ground_points, res.collision, T[:, :3, 3], wconf)
     t_walk = time.perf_counter() - t0
@@ -81,7 +92,7 @@ def run(args) -> dict:
     gt_ng = sample_surface(*scene.without_ground(), 400_000, seed=1)
     acc = chamfer_points(rec, gt_ng).a_to_b
     comp = chamfer_points(rec, gv[rng.choice(len(gv), min(len(gv), 200_000), replace=False)]).b_to_a
-    g, o, r = scene.walkable_grid(pad=wconf.robot_radius_m)
+    g, o, r = scene.walkable_grid()  # footprints only: erode_walkable adds the robot radius
     gt = erode_walkable(WalkableGrid(g, o, r), wconf.robot_radius_m)
     # compare on the stretch the walk covers and sees: the GT grid spans the whole modelled
     # street, and a forward camera 1.5 m up first sees the ground about 3-4 m ahead
@@ -99,31 +110,87 @@ def run(args) -> dict:
                 accuracy_m=round(acc, 4), completeness_visible_m=round(comp, 4),
                 chamfer_m=round((acc + comp) / 2, 4),
                 walkable_iou=round(grid_iou(wm_crop, gt_crop), 4), iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
-                walkable_area_m2=round(wm.area_m2(), 2))
+                walkable_area_m2=round(wm.area_m2(), 2), variant=args.variant,
+                **corridor_check(wm, res.collision, T[:, :3, 3]).to_dict())
 
 
-def run_from_splats(args) -> dict:
-    from pathlib import Path
+VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
+    "baseline (fuse every pixel, no ground growth)": (dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), {}),
+    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), {}),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), {}),
+    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), {}),
+    "+ growth + body carving + walked ground (default)": (dict(carve=CarveConfig()), {}, {}),
+    "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
+    "default + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, {}),
+    "default + opacity >= 0.2, cov. culling 1e-3": (
+        dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=1e-3)),
+}
+DEFAULT_VARIANT = "+ growth + body carving + walked ground (default)"
 
+
+def find_clip(work: Path) -> Path:
+    """The first clip folder under a pipeline work folder holding recon/splats.ply."""
+    found = sorted(p.parent.parent for p in work.glob("**/recon/splats.ply"))
+    if not found:
+        raise SystemExit(f"no */recon/splats.ply under {work}")
+    return found[0]
+
+
+def run_from_splats(args) -> list[dict]:
     from vid2sim.factory.sfm.posed import PosedClip
     from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
     from vid2sim.factory.evaluation.synthetic_gt import scene_errors
     from vid2sim.splats.ply import read_ply
 
     work = Path(args.from_splats)
-    clip_dir = sorted(p for p in (work / "clips").iterdir() if (p / "recon/splats.ply").exists())[0]
+    clip_dir = find_clip(work)
+    synth = work / "synthetic" if (work / "synthetic" / "ground_truth.json").is_file() else None
     clip = PosedClip.load(clip_dir / "metric")
     src = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3] metric
-    vconf, mconf, wconf = SplatViewConfig(scale=args.scale, every=args.every), MeshingConfig(), WalkableConfig()
     model = read_ply(clip_dir / "recon/splats.ply")
-    t0 = time.perf_counter()
-    res = build_meshes(render_views(model, clip, vconf), mconf)
-    t_mesh = time.perf_counter() - t0
-    wm = walkable_map(res.ground_points, res.collision, src, wconf)
-    err = scene_errors(clip, work / "synthetic", res.collision, wm, wconf.robot_radius_m, args.unseen_m)
-    return dict(source=str(clip_dir), views=res.summary["n_views"], scale=vconf.scale, every=vconf.every,
-                mesh_s=round(t_mesh, 2), collision_faces=res.summary["collision_faces"],
-                **{k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
+    rendered: dict[str, tuple[list, float]] = {}
+    rows = []
+    names = list(VARIANTS) if args.ablation else [args.variant]
+    for name in names:
+        mchg, wchg, vchg = VARIANTS[name]
+        vkey = json.dumps(vchg, sort_keys=True)
+        if vkey not in rendered:  # render once per view config
+            t0 = time.perf_counter()
+            vconf = replace(SplatViewConfig(scale=args.scale, every=args.every), **vchg)
+            rendered[vkey] = (list(render_views(model, clip, vconf)), time.perf_counter() - t0)
+        views, t_render = rendered[vkey]
+        mconf, wconf = replace(MeshingConfig(), **mchg), replace(WalkableConfig(), **wchg)
+        t0 = time.perf_counter()
+        res = build_meshes(views, mconf)
+        t_mesh = time.perf_counter() - t0
+        wm = walkable_map(res.ground_points, res.collision, src, wconf)
+        row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),
+                   mesh_s=round(t_mesh, 2), collision_faces=res.summary["collision_faces"],
+                   **corridor_check(wm, res.collision, src).to_dict())
+        if synth is not None:
+            err = scene_errors(clip, synth, res.collision, wm, wconf.robot_radius_m, args.unseen_m)
+            row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+    return rows
+
+
+TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "components"),
+              ("corridor_area_m2", "corridor area m2"), ("walkable_iou", "walkable IoU"),
+              ("near_path_accuracy_median_m", "acc. median <5 m"),
+              ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
+              ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
+              ("mesh_s", "meshing s")]
+
+
+def print_table(rows: list[dict]) -> None:
+    """Markdown ablation table (one row per variant)."""
+    keys = [(k, h) for k, h in TABLE_KEYS if k in rows[0]]
+    print("| variant | " + " | ".join(h for _, h in keys) + " |")
+    print("|---" * (len(keys) + 1) + "|")
+    for r in rows:
+        vals = [f"{r[k]:.3f}" if isinstance(r[k], float) else str(r[k]) for k, _ in keys]
+        print(f"| {r['variant']} | " + " | ".join(vals) + " |")
 
 
 def main() -> None:
@@ -135,12 +202,18 @@ def main() -> None:
     ap.add_argument("--scale", type=float, default=0.5)
     ap.add_argument("--noise", type=float, default=0.0)
     ap.add_argument("--noise-deg", type=float, default=5.0)
+    ap.add_argument("--ablation", action="store_true", help="every variant in VARIANTS (--from-splats)")
+    ap.add_argument("--variant", default=DEFAULT_VARIANT, choices=list(VARIANTS))
     ap.add_argument("--unseen-m", type=float, default=4.0, help="skip this much after the start")
     args = ap.parse_args()
+    print(hardware_line())
+    print("command: " + " ".join(sys.argv))
     if args.from_splats:
         args.scale = 0.3 if args.scale == 0.5 else args.scale  # SplatViewConfig defaults
         args.every = 2 if args.every == 4 else args.every
-    print(json.dumps(run_from_splats(args) if args.from_splats else run(args), indent=2))
+        print_table(run_from_splats(args))
+    else:
+        print(json.dumps(run(args), indent=2))
 
 
 if __name__ == "__main__":

@@ -53,6 +53,13 @@ def bench_gopro(args: argparse.Namespace) -> None:
         keys = ("recon.psnr", "recon.ssim", "sfm.registered_fraction", "sfm.mean_reproj_error_px",
                 "recon.n_gaussians", "walkable.walkable_area_m2", "meshing.collision_faces")
         print({k: rec.metrics.get(k) for k in keys})
+    corridor = next(work.glob("clips/*/walkable/corridor.json"), None)  # written even when gated
+    if corridor is not None:
+        c = json.loads(corridor.read_text())
+        print(f"corridor: {c['walkable_fraction']:.1%} of the walked path walkable (target >= 99 %), "
+              f"{c['path_components']} component(s) (target 1), {c['corridor_area_m2']:.3f} m^2 of "
+              f"collision surface in the body corridor (target < 0.05); gate "
+              f"{'passed' if c['passed'] else 'failed: ' + c['reasons']}")
     print(f"gopro 10.5 s 848x480 -> registered scene: {seconds:.0f} s wall (target <= 1200 s)")
     if not args.keep:
         shutil.rmtree(work, ignore_errors=True)

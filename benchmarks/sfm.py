@@ -43,9 +43,9 @@ def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tupl
     """The factory's decode (10 fps, faces blurred) and masks stages."""
     from vid2sim.factory.ingest import decode, masks
 
-    dconf = decode.DecodeConf(fps=10.0, max_side=max_side, workers=2)
+    dconf = decode.DecodeConfig(fps=10.0, max_side=max_side, workers=2)
     ddir = timed(times, "decode", lambda: decode.main(dconf, str(video), work / "decode"))
-    mdir = timed(times, "masks", lambda: masks.main(masks.MasksConf(), ddir, work / "masks"))
+    mdir = timed(times, "masks", lambda: masks.main(masks.MasksConfig(), ddir, work / "masks"))
     return ddir / "images", mdir / "masks"
 
 

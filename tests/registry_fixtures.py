@@ -149,3 +149,17 @@ def synthetic_record(scene_id: str, group: str, *, psnr: float = 25.0, tags: tup
         metrics={"psnr": psnr}, bounds=(0, 0, 0, 1, 1, 1), mesh_bounds=(0, 0, 0, 1, 1, 1),
         walkable_area_m2=10.0, tags=tuple(tags), pipeline_hash="p", code_version="test", content_hash=h,
         artifacts=(Artifact("scene.json", h, 10),))
+
+
+def cli_add_worker(root: str, bundle: str, barrier) -> dict:
+    """Run in a spawned process: wait for the others, then `vid2sim registry add --json`."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from vid2sim.cli.registry import app  # the registry sub-app alone: quick to spawn
+
+    barrier.wait()
+    r = CliRunner().invoke(app, ["add", bundle, "-r", root, "--json"])
+    assert r.exit_code == 0, r.output
+    return json.loads(r.stdout)

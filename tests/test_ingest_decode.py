@@ -14,10 +14,10 @@ import pytest
 
 from ingest_media import make_video, panning_frames, texture, write_video
 from vid2sim.factory.ingest import decode
-from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConf
+from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
 
-CONF = decode.DecodeConf(workers=1)
+CONF = decode.DecodeConfig(workers=1)
 
 
 def _decode_error(tmp_path: Path, source, conf=CONF) -> StageError:
@@ -94,10 +94,10 @@ def test_faces_blurred_before_writing(tmp_path: Path) -> None:
 
 def test_face_blurrer_leaves_faceless_frames(tmp_path: Path) -> None:
     img = texture(120, 160)
-    out, boxes = FaceBlurrer(FaceConf())(img)
+    out, boxes = FaceBlurrer(FaceConfig())(img)
     assert len(boxes) == 0 and np.array_equal(out, img)
     with pytest.raises(StageError) as e:
-        FaceBlurrer(FaceConf(detector="yunet", model_path=str(tmp_path / "missing.onnx")))
+        FaceBlurrer(FaceConfig(detector="yunet", model_path=str(tmp_path / "missing.onnx")))
     assert e.value.reason == "no_face_detector"
 
 

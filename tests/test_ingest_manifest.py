@@ -10,7 +10,7 @@ import pytest
 import yaml
 
 from ingest_media import make_video
-from vid2sim.factory.ingest.clips import ClipsConf, plan_clips, split_windows
+from vid2sim.factory.ingest.clips import ClipsConfig, plan_clips, split_windows
 from vid2sim.factory.ingest.clip_list import load_manifest, parse_row
 from vid2sim.factory.ingest.sources import resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -100,7 +100,7 @@ def test_plan_clips(tmp_path: Path) -> None:
     src = resolve_source(rows[0].source)
     one = plan_clips(rows[0], src)
     assert len(one) == 1 and one[0].window == (0.0, 1.5) and one[0].capture_height == 1.6
-    cut = plan_clips(rows[1], src, ClipsConf(clip_seconds=1.0, min_seconds=0.5))
+    cut = plan_clips(rows[1], src, ClipsConfig(clip_seconds=1.0, min_seconds=0.5))
     assert [c.window for c in cut] == [(0.0, 1.0), (1.0, 2.0), (2.0, 3.0)]
     assert len({c.clip_id for c in cut}) == 3 and all(c.group == "walk" for c in cut)
     assert video.exists()

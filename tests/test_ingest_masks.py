@@ -23,7 +23,7 @@ def _decoded(tmp_path: Path, frames: list[np.ndarray]) -> Path:
     folder.mkdir()
     for i, f in enumerate(frames):
         cv2.imwrite(str(folder / f"{i:03d}.png"), f)
-    return decode.main(decode.DecodeConf(workers=1, dup_flow_px=0.0), folder, tmp_path / "decode")
+    return decode.main(decode.DecodeConfig(workers=1, dup_flow_px=0.0), folder, tmp_path / "decode")
 
 
 def _gt(i: int, shape: tuple) -> np.ndarray:
@@ -35,7 +35,7 @@ def _gt(i: int, shape: tuple) -> np.ndarray:
 
 def test_moving_object_masked_static_background_kept(tmp_path: Path) -> None:
     frames = panning_frames(16, h=240, w=320, speed=3.0, obj=OBJ)
-    out = masks.main(masks.MasksConf(), _decoded(tmp_path, frames), tmp_path / "masks")
+    out = masks.main(masks.MasksConfig(), _decoded(tmp_path, frames), tmp_path / "masks")
     files = sorted((out / "masks").iterdir())
     assert [p.name for p in files] == [f"{i:06d}.jpg.png" for i in range(16)]
     recalls, false_bg = [], []
@@ -54,7 +54,7 @@ def test_moving_object_masked_static_background_kept(tmp_path: Path) -> None:
 
 def test_static_scene_has_no_dynamic_pixels(tmp_path: Path) -> None:
     frames = panning_frames(12, h=240, w=320, speed=3.0)
-    out = masks.main(masks.MasksConf(), _decoded(tmp_path, frames), tmp_path / "masks")
+    out = masks.main(masks.MasksConfig(), _decoded(tmp_path, frames), tmp_path / "masks")
     dyn = [np.mean(cv2.imread(str(p), 0) == 0) for p in sorted((out / "masks").iterdir())]
     assert max(dyn) < 0.005
 
@@ -76,7 +76,7 @@ def test_learned_segmenter_plugin_keeps_only_moving_segments(tmp_path: Path) -> 
         f[150:200, sx:sx + 50] = (0, 0, 255)
     model = tmp_path / "seg.pt"
     torch.jit.script(_RedSegmenter()).save(str(model))
-    conf = masks.MasksConf(segmenter_path=str(model), segmenter_classes=(1,))
+    conf = masks.MasksConfig(segmenter_path=str(model), segmenter_classes=(1,))
     out = masks.main(conf, _decoded(tmp_path, frames), tmp_path / "masks")
     body, sign = [], []
     for i, p in enumerate(sorted((out / "masks").iterdir())):
@@ -93,13 +93,13 @@ def test_learned_segmenter_plugin_keeps_only_moving_segments(tmp_path: Path) -> 
 
 def test_errors_and_skip(tmp_path: Path) -> None:
     with pytest.raises(StageError) as e:
-        masks.main(masks.MasksConf(), tmp_path / "nowhere", tmp_path / "masks")
+        masks.main(masks.MasksConfig(), tmp_path / "nowhere", tmp_path / "masks")
     assert e.value.reason == "missing_input" and not (tmp_path / "masks").exists()
     dec = _decoded(tmp_path, panning_frames(10, speed=3.0))
     with pytest.raises(StageError) as e:
-        masks.main(replace(masks.MasksConf(), segmenter_path=str(tmp_path / "none.pt")), dec, tmp_path / "m2")
+        masks.main(replace(masks.MasksConfig(), segmenter_path=str(tmp_path / "none.pt")), dec, tmp_path / "m2")
     assert e.value.reason == "missing_segmenter" and not (tmp_path / "m2").exists()
-    out = masks.main(masks.MasksConf(), dec, tmp_path / "masks")
+    out = masks.main(masks.MasksConfig(), dec, tmp_path / "masks")
     stamp = (out / "stage.json").stat().st_mtime_ns
-    masks.main(masks.MasksConf(), dec, tmp_path / "masks")
+    masks.main(masks.MasksConfig(), dec, tmp_path / "masks")
     assert (out / "stage.json").stat().st_mtime_ns == stamp

@@ -19,7 +19,7 @@ pytestmark = pytest.mark.shared_data
 def test_gopro_sidewalk_decode_and_masks(tmp_path: Path) -> None:
     video = shared_data_path("gopro_max_sidewalk") / "max-heromode.mp4"
     t0 = time.perf_counter()
-    out = decode.main(decode.DecodeConf(), video, tmp_path / "decode")
+    out = decode.main(decode.DecodeConfig(), video, tmp_path / "decode")
     t1 = time.perf_counter()
     clip = json.loads((out / "clip.json").read_text())
     counts = clip["counts"]
@@ -28,7 +28,7 @@ def test_gopro_sidewalk_decode_and_masks(tmp_path: Path) -> None:
     assert counts["kept"] >= 95 and counts["kept"] + counts["dropped_blur"] + counts["dropped_duplicate"] \
         + counts["dropped_black"] == 105
     assert len(list((out / "images").glob("*.jpg"))) == counts["kept"]
-    m = masks.main(masks.MasksConf(), out, tmp_path / "masks")
+    m = masks.main(masks.MasksConfig(), out, tmp_path / "masks")
     t2 = time.perf_counter()
     table = pq.read_table(m / "masks.parquet").to_pylist()
     assert len(table) == counts["kept"]
@@ -40,7 +40,7 @@ def test_lund_image_folder(tmp_path: Path) -> None:
     folder = shared_data_path("opensfm_lund_street") / "images"
     src = resolve_source(folder)
     assert src.kind == "images" and len(src.images()) == 29
-    out = decode.main(decode.DecodeConf(), src, tmp_path / "decode")
+    out = decode.main(decode.DecodeConfig(), src, tmp_path / "decode")
     table = pq.read_table(out / "frames.parquet").to_pylist()
     assert [r["source_frame"] for r in table] == list(range(29))
     clip = json.loads((out / "clip.json").read_text())

@@ -12,7 +12,8 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from tests.test_meshing_scene import analytic_walkable, full_scene, obstacles, ring_views
-from vid2sim.factory.evaluation.geometry_metrics import grid_iou, sample_surface
+from vid2sim.factory.evaluation.geometry_metrics import grid_iou
+from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, build_meshes
 from vid2sim.factory.geometry.raycast import mesh_arrays
 from vid2sim.factory.geometry.walkable import WalkableConfig, walkable_map

@@ -4,6 +4,7 @@ re-run resumes from the cache and commits nothing new."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 from pathlib import Path
 
@@ -12,6 +13,7 @@ import ray
 
 from vid2sim.factory.ingest.clips import ClipSpec
 from vid2sim.factory.runtime.orchestrator import ensure_ray, run_clips
+from vid2sim.factory.runtime.stage_cache import MARKER
 from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, STAGES, StageSpec
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.ingest.sources import resolve_source
@@ -20,7 +22,9 @@ from vid2sim.factory.synthetic.stage import main as make_street
 from vid2sim.registry import Registry
 from vid2sim.formats.bundle import validate_bundle
 
-BACK_HALF = ("recon", "meshing", "bundle")
+pytestmark = pytest.mark.slow  # splat training + meshing through Ray (about a minute)
+
+BACK_HALF = ("recon", "meshing", "walkable", "bundle")
 
 
 @pytest.fixture(scope="module")
@@ -52,6 +56,12 @@ def _run(street: Path, work: Path, registry: Registry):
     return results[0], versions
 
 
+def _markers(clip_dir: Path) -> dict[str, tuple[str, int]]:
+    """{stage: (marker key, marker mtime_ns)} of the finished stage folders."""
+    return {p.parent.name: (json.loads(p.read_text())["key"], p.stat().st_mtime_ns)
+            for p in sorted(clip_dir.glob("*/" + MARKER))}
+
+
 def test_back_half_commits_a_valid_scene_and_resumes(street, tmp_path):
     registry = Registry(str(tmp_path / "registry"))
     result, versions = _run(street, tmp_path / "work", registry)
@@ -64,8 +74,10 @@ def test_back_half_commits_a_valid_scene_and_resumes(street, tmp_path):
     assert scenes[0].walkable_area_m2 > 1.0
     assert "recon.psnr" in scenes[0].metrics and scenes[0].metrics["recon.psnr"] > 12.0
     assert registry.verify() == []
+    markers = _markers(tmp_path / "work" / "clip0")
+    assert set(markers) == set(BACK_HALF)
 
     again, versions2 = _run(street, tmp_path / "work", registry)
     assert again.ok
-    assert sum(again.seconds.values()) < 0.5 * sum(result.seconds.values())  # cached stages skipped
+    assert _markers(tmp_path / "work" / "clip0") == markers  # every stage cached: no marker rewritten
     assert versions2 == versions  # identical content: no new registry version

@@ -12,6 +12,8 @@ from conftest import shared_data_path
 from vid2sim.factory.sfm import metric, sfm
 from vid2sim.factory.evaluation.poses import evaluate, load_kitti_poses, load_posed_clip
 
+pytestmark = pytest.mark.slow  # SfM + metric frame on 51 KITTI frames (minutes)
+
 
 def kitti_intrinsics(calib: Path) -> list[float]:
     P0 = np.array([v for v in calib.read_text().splitlines()[0].split() if ":" not in v], float).reshape(3, 4)

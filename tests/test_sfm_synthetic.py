@@ -3,19 +3,21 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from vid2sim.factory.ingest import decode
-
 from vid2sim.factory.sfm import metric, sfm
 from vid2sim.factory.evaluation.poses import evaluate, load_posed_clip
 from vid2sim.factory.synthetic import generate_street, render_video
 from vid2sim.factory.synthetic import preset as street_preset
 
+pytestmark = pytest.mark.slow  # renders a street and runs SfM (over a minute)
+
 
 def test_synthetic_street_metric_poses(tmp_path):
     conf = street_preset("demo", seed=1, duration_s=4.0, write_depth=False)
     clip = render_video(generate_street(conf), conf, tmp_path / "render")
-    dec = decode.main(decode.DecodeConf(fps=10.0, max_side=854, workers=1), str(clip.video), tmp_path / "decode")
+    dec = decode.main(decode.DecodeConfig(fps=10.0, max_side=854, workers=1), str(clip.video), tmp_path / "decode")
     sdir = sfm.main(sfm.preset("fast"), dec / "images", None, tmp_path / "sfm")
     q = sfm.load_quality(sdir)
     assert q["registered_fraction"] >= 0.95 and q["mean_reproj_error_px"] < 1.0

@@ -21,7 +21,7 @@ def test_ground_truth_scores_perfectly_even_when_shifted(tmp_path):
     assert street_config(out) == conf
     scene = generate_street(conf)
     mesh = trimesh.Trimesh(*scene.without_ground(), process=False)
-    g, o, r = scene.walkable_grid(pad=0.3)
+    g, o, r = scene.walkable_grid()
     gt_map = erode_walkable(WalkableGrid(g, o, r), 0.3)
     est = PosedClip.load(out)
     shift = np.array([3.0, 1.5, 0.0])  # the estimate's own frame: GT moved by `shift`
@@ -33,3 +33,17 @@ def test_ground_truth_scores_perfectly_even_when_shifted(tmp_path):
     assert err["ate_m"] < 1e-6 and err["metric_scale_error_pct"] < 1e-6
     assert err["collision_accuracy_m"] < 0.05  # sampling distance only
     assert err["walkable_iou"] > 0.99
+
+
+def test_gt_robot_centre_map_keeps_exactly_the_robot_radius_from_obstacles():
+    """Robot-centre cells are farther than the radius from an obstacle: inflating the
+    footprints AND eroding (the old scorer) would keep twice the radius."""
+    scene = generate_street(preset("test", seed=2, duration_s=3.0))
+    g, o, r = scene.walkable_grid()
+    gt = erode_walkable(WalkableGrid(g, o, r), 0.3)
+    ob = scene.obstacles[0]
+    ys, xs = np.nonzero(gt.grid)
+    X, Y = gt.cell_center(ys, xs)
+    assert not ob.contains(X, Y, 0.3 - r).any()  # nothing within the radius is kept
+    near = ob.contains(X, Y, 0.3 + 2 * r) & ~ob.contains(X, Y, 0.3 + r)
+    assert near.any()  # cells just beyond the radius are kept

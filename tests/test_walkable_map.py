@@ -70,7 +70,8 @@ def test_path_off_ground_raises():
     far_path = PATH + np.array([0.0, 20.0, 0.0])
     with pytest.raises(WalkableError) as e:
         walkable_map(plane_points(-4, 4, -2, 2), None, far_path,
-                     WalkableConfig(path_radius_m=0.0, max_dist_from_path_m=100.0))
+                     WalkableConfig(path_radius_m=0.0, walked_radius_m=0.0,
+                                    max_dist_from_path_m=100.0))
     assert e.value.reason == "path_off_ground"
     with pytest.raises(WalkableError, match="bad_camera_path"):
         walkable_map(plane_points(-4, 4, -2, 2), None, np.zeros((0, 3)), WalkableConfig())
@@ -143,3 +144,14 @@ def test_kerb_drop_blocks_like_an_obstacle():
     assert not wm.lookup(np.array([0.0, 0.0]), np.array([-0.5, -2.0])).any()
     flat = walkable_map(np.concatenate([side, road]), None, PATH, WalkableConfig(max_step_m=0))
     assert flat.lookup(np.array([0.0]), np.array([-2.0])).all()
+
+
+def test_ground_grows_over_enclosed_unseen_holes_but_not_past_obstacles():
+    pts = plane_points(-4, 4, -2, 2)
+    hole = (np.abs(pts[:, 0] - 1.0) < 0.6) & (np.abs(pts[:, 1] - 1.0) < 0.5)  # occluded patch
+    ob = box(-2.0, 1.2, 0.6, 0.6, 1.0)
+    grown = walkable_map(pts[~hole], ob, PATH, WalkableConfig())
+    plain = walkable_map(pts[~hole], ob, PATH, WalkableConfig(fill_holes=False))
+    assert grown.lookup(np.array([1.0]), np.array([1.0])).all()
+    assert not plain.lookup(np.array([1.0]), np.array([1.0])).any()
+    assert not grown.lookup(np.array([-2.0]), np.array([1.2])).any()  # the obstacle still blocks

@@ -6,6 +6,8 @@ import dataclasses
 import hashlib
 import json
 import subprocess
+import types
+import typing
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -42,6 +44,46 @@ def to_jsonable(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
+
+
+def from_jsonable(cls: Any, data: Any) -> Any:
+    """Inverse of `to_jsonable` for a config dataclass: rebuild `cls` from plain JSON, following
+    the field type hints (nested dataclasses, Optional, tuples, Paths). Unknown keys raise."""
+    if not dataclasses.is_dataclass(cls):
+        return _coerce(cls, data)
+    if not isinstance(data, dict):
+        raise TypeError(f"{cls.__name__}: expected an object, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise TypeError(f"{cls.__name__}: unknown field(s) {unknown}")
+    return cls(**{k: _coerce(hints[k], v) for k, v in data.items()})
+
+
+def _coerce(tp: Any, value: Any) -> Any:
+    """One JSON value -> the annotated type `tp` (best effort for unions and containers)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if value is None or tp is Any:
+        return value
+    if origin in (typing.Union, types.UnionType):
+        inner = [a for a in args if a is not type(None)]
+        return _coerce(inner[0], value) if len(inner) == 1 else value
+    if dataclasses.is_dataclass(tp):
+        return from_jsonable(tp, value)
+    if origin is tuple or tp is tuple:
+        if args and args[-1] is not Ellipsis:
+            return tuple(_coerce(a, v) for a, v in zip(args, value))
+        return tuple(_coerce(args[0], v) if args else v for v in value)
+    if origin is list:
+        return [_coerce(args[0], v) if args else v for v in value]
+    if origin is dict:
+        return {k: _coerce(args[1], v) if args else v for k, v in value.items()}
+    if tp is Path:
+        return Path(value)
+    if tp is float and isinstance(value, int):
+        return float(value)
+    return value
 
 
 def config_hash(*parts: Any) -> str:

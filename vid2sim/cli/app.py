@@ -27,6 +27,11 @@ def _register_subapps() -> None:
     app.command("ingest")(ingest_command)
     from vid2sim.cli.recon import app as recon_app
     app.add_typer(recon_app, name="recon")
+    from vid2sim.cli.train import study_command, train_command
+    app.command("train")(train_command)
+    app.command("study")(study_command)
+    from vid2sim.cli.envs import app as envs_app
+    app.add_typer(envs_app, name="envs")
 
 
 @app.command()

@@ -54,3 +54,44 @@ def poses(
         for k, d in rep["rpe"].items():
             table.add_row(f"RPE k={k} trans rmse / rot mean deg", f"{d['trans_rmse']:.4f} / {d['rot_mean_deg']:.3f}")
     Console().print(table)
+
+
+@app.command("policy")
+def policy(
+    policy: str = typer.Option(..., "--policy", help="Training run folder (or SAC .zip), 'random' or 'expert'."),
+    registry: str = typer.Option(..., "--registry", help="Registry root."),
+    split_seed: int = typer.Option(0, "--split-seed", help="Split whose held-out test scenes are used."),
+    scenes: Optional[str] = typer.Option(None, "--scenes", help="Comma-separated scene ids instead of the test split."),
+    trials: int = typer.Option(25, "--trials", help="Episodes per scene (paper: 25)."),
+    obstacles: str = typer.Option("static", "--obstacles", help="none | static (0-5, paper) | dynamic (SocialNav)"),
+    variant: str = typer.Option("rgb", "--variant", help="rgb | depth (oracle) | mesh-rgb (baseline)"),
+    max_steps: Optional[int] = typer.Option(None, "--max-steps", help="Episode limit (default: the env's 3000)."),
+    seed: int = typer.Option(1000, "--seed", help="Trial k of every scene uses seed + k."),
+    privileged: bool = typer.Option(False, "--privileged", help="Goal vector + range observations (privileged agent)."),
+    out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
+    as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
+) -> None:
+    """Navigation policy on held-out scenes: SR, SPL, Cost, SNS with 95 % bootstrap intervals."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from vid2sim.training.evaluate import METRICS, EvalConfig, evaluate
+
+    config = EvalConfig(registry=registry, policy=policy, split_seed=split_seed, trials=trials, obstacles=obstacles,
+                        variant=variant, max_steps=max_steps, seed=seed,
+                        env_id="vid2sim/PointNavPrivileged-v0" if privileged else None,
+                        scene_ids=[s for s in (scenes or "").split(",") if s])
+    report = evaluate(config)
+    if out:
+        out.write_text(report.to_json())
+    if as_json:
+        typer.echo(report.to_json())
+        return
+    table = Table(title=f"{policy}: {report.episodes} episodes ({trials} per scene), obstacles={obstacles}, {variant}")
+    table.add_column("metric")
+    table.add_column("mean")
+    table.add_column("95% CI")
+    for k in METRICS:
+        m = report.metrics[k]
+        table.add_row(k, f"{m.mean:.3f}", f"[{m.low:.3f}, {m.high:.3f}]")
+    Console().print(table)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 from typing import List, Optional
 
 import typer
@@ -10,28 +11,42 @@ from rich.console import Console
 from rich.table import Table
 
 
+def interrupted_message(states: dict, workdir: str) -> str:
+    """What an interrupted ingest finished, and how to resume it."""
+    done = sorted(c for c, (status, _, _) in states.items() if status == "done")
+    failed = sorted(c for c, (status, _, _) in states.items() if status == "failed")
+    partial = sorted(f"{c} (after {i} stage(s), in {stage or 'queue'})" for c, (status, i, stage) in states.items()
+                     if status not in ("done", "failed"))
+    lines = [f"interrupted: {len(done)} clip(s) committed to the registry"
+             + (f" ({', '.join(done)})" if done else "") + f", {len(failed)} failed, {len(partial)} unfinished"]
+    lines += [f"  unfinished: {p}" for p in partial]
+    lines.append(f"resume: run the same command again; finished stages are cached in {workdir} and are not redone")
+    return "\n".join(lines)
+
+
 def ingest_command(
     inputs: List[str] = typer.Argument(..., help="Video files, image folders, URIs or manifests (.yaml/.csv/.parquet)."),
     registry: Optional[str] = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address; default: an embedded local runtime."),
     preset: str = typer.Option("fast", "--preset", help="fast | paper"),
+    config: Optional[Path] = typer.Option(None, "--config", help="PipelineConfig JSON (e.g. a scene.json's pipeline.config); overrides --preset."),
     workdir: str = typer.Option("vid2sim-work", "--workdir",
                                 help="Stage outputs (cache; re-runs resume): a folder or an object-store "
                                      "URI (s3://bucket/work) for clusters without a shared disk."),
-    num_cpus: Optional[int] = typer.Option(None, "--num-cpus", help="CPUs for the embedded Ray runtime."),
+    num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="CPUs for the embedded Ray runtime (>= 1)."),
     licence: str = typer.Option("unknown", "--licence", help="Licence tag for sources given directly."),
     capture_height: Optional[float] = typer.Option(None, "--capture-height", help="Camera height above ground (m) for direct sources."),
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Turn videos into registered, simulation-ready scenes (each clip's stages run as Ray tasks)."""
-    from vid2sim.factory.runtime.pipeline import STAGES, ingest, preset as make_preset
+    from vid2sim.factory.runtime.pipeline import STAGES, PipelineConfig, ingest, preset as make_preset
     from vid2sim.factory.runtime.progress import IngestProgress
     from vid2sim.factory.runtime.stage_cache import StageError
 
     console = Console(stderr=True)
     try:
-        conf = make_preset(preset)
-    except ValueError as e:
+        conf = PipelineConfig.load(config) if config else make_preset(preset)
+    except (ValueError, TypeError, OSError) as e:
         console.print(f"[red]error:[/red] {e}")
         raise typer.Exit(2)
     holder: dict = {}
@@ -40,6 +55,7 @@ def ingest_command(
         holder["progress"] = IngestProgress(ids, [n for n, _ in STAGES], console=console, enabled=not as_json).__enter__()
 
     def on_update(state) -> None:
+        holder.setdefault("states", {})[state.clip_id] = (state.status, state.stage_index, state.stage)
         if "progress" in holder:
             holder["progress"].update(state)
 
@@ -50,6 +66,11 @@ def ingest_command(
     except StageError as e:  # a bad manifest: nothing was processed
         console.print(f"[red]error:[/red] {e}")
         raise typer.Exit(2)
+    except KeyboardInterrupt:
+        if "progress" in holder:
+            holder.pop("progress").__exit__(None, None, None)
+        console.print(interrupted_message(holder.get("states", {}), workdir))
+        raise typer.Exit(130)
     finally:
         if "progress" in holder:
             holder["progress"].__exit__(None, None, None)

@@ -1,4 +1,4 @@
-"""`vid2sim recon`: train splats for one PosedClip folder (the `reconstruct` stage)."""
+"""`vid2sim recon`: train splats for one PosedClip folder (the `recon` stage)."""
 
 from __future__ import annotations
 

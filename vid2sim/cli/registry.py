@@ -85,10 +85,8 @@ def _record_out(rec, as_json: bool, title: str) -> None:
 def add(bundle_dir: str = typer.Argument(..., help="Scene bundle folder."),
         registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Validate a bundle, store its artifacts and commit a new scene version."""
-    reg = _open(registry)
-    before = reg.version if reg.manifest.exists() else -1
-    rec = reg.add(bundle_dir)
-    noop = reg.version == before
+    res = _open(registry).add_result(bundle_dir)
+    rec, noop = res.record, res.noop
     if as_json:
         _echo_json({**rec.to_dict(), "noop": noop})
     else:
@@ -206,16 +204,24 @@ def split(seed: int = typer.Option(0, "--seed"),
 
 @app.command()
 @handles_errors
-def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
-    """Re-hash every referenced artifact; exit 1 naming any missing or corrupt one."""
-    problems = _open(registry).verify()
+def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
+           repair: bool = typer.Option(False, "--repair", help="Rewrite missing/corrupt blobs from --from folders."),
+           from_: List[str] = typer.Option([], "--from", help="Bundle folder holding good copies (repeat).")) -> None:
+    """Check the manifest log and re-hash every blob; exit 1 naming each problem."""
+    reg = _open(registry)
+    if repair and not from_:
+        raise ValueError("--repair needs --from BUNDLE_DIR (a folder holding good copies of the artifacts)")
+    repaired = reg.repair(from_) if repair else []
+    for line in repaired if not as_json else []:
+        typer.echo(line)
+    problems = reg.verify()
     if as_json:
-        _echo_json({"ok": not problems, "problems": problems})
+        _echo_json({"ok": not problems, "problems": problems, **({"repaired": repaired} if repair else {})})
     elif problems:
         for p in problems:
             typer.secho(p, fg=typer.colors.RED, err=True)
     else:
-        typer.echo("ok: every referenced artifact is present and intact")
+        typer.echo("ok: manifest log continuous, every referenced artifact present and intact, no stray blobs")
     if problems:
         raise typer.Exit(1)
 
@@ -224,9 +230,12 @@ def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> No
 @handles_errors
 def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
        grace_seconds: float = typer.Option(3600.0, "--grace-seconds", help="Keep unreferenced blobs younger than this."),
-       dry_run: bool = typer.Option(False, "--dry-run")) -> None:
-    """Delete blobs no manifest row references (never a referenced one)."""
-    removed = _open(registry).gc(grace_s=grace_seconds, dry_run=dry_run)
+       dry_run: bool = typer.Option(False, "--dry-run"),
+       force: bool = typer.Option(False, "--force", help="Delete unreferenced blobs even when the manifest "
+                                  "log looks damaged or blobs exist that nothing accounts for (lost history).")
+       ) -> None:
+    """Delete blobs of adds that never committed (never a referenced one); refuses on lost history."""
+    removed = _open(registry).gc(grace_s=grace_seconds, dry_run=dry_run, force=force)
     if as_json:
         _echo_json({"removed": removed, "dry_run": dry_run})
     else:
@@ -254,10 +263,17 @@ def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 @app.command()
 @handles_errors
 def query(sql: str = typer.Argument(..., help="DuckDB SQL over tables `scenes` (all versions) and `latest`."),
-          registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt) -> None:
-    """Run SQL over the manifests."""
-    table = _open(registry).query(sql, as_of=as_of)
+          registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt,
+          max_rows: int = typer.Option(1000, "--max-rows", min=1, help="Print at most this many rows."),
+          memory: str = typer.Option("512MB", "--memory", help="DuckDB memory limit.")) -> None:
+    """Read-only SQL over the manifests (one SELECT; no files, URLs, extensions; capped)."""
+    from vid2sim.registry.query import QueryLimits
+
+    table, more = _open(registry).query_head(sql, as_of=as_of, limits=QueryLimits(memory=memory, max_rows=max_rows))
     rows = table.to_pylist()
+    if more:
+        typer.secho(f"note: showing the first {max_rows} rows; the result has more (--max-rows, or add LIMIT)",
+                    fg=typer.colors.YELLOW, err=True)
     if as_json:
         _echo_json(rows)
         return

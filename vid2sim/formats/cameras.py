@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -51,4 +52,21 @@ def load_cameras(path: Path) -> pa.Table:
         raise BundleError(path, f"split values must be 'train' or 'test', got {sorted(map(str, splits))}")
     if table.num_rows == 0:
         raise BundleError(path, "cameras table has no rows")
+    _check_camera_values(path, table)
     return table
+
+
+def _check_camera_values(path: Path, table: pa.Table) -> None:
+    """Finite intrinsics, poses and timestamps; positive sizes and focal lengths."""
+    for c in ("timestamp", "fx", "fy", "cx", "cy"):
+        v = table.column(c).to_numpy(zero_copy_only=False).astype(np.float64)
+        if not np.isfinite(v).all():
+            raise BundleError(path, f"non-finite '{c}' in {int(np.count_nonzero(~np.isfinite(v)))} row(s)")
+    poses = np.asarray(table.column("cam_to_world").combine_chunks().flatten().to_numpy(zero_copy_only=False),
+                       np.float64)
+    if not np.isfinite(poses).all():
+        raise BundleError(path, "non-finite values in cam_to_world poses")
+    for c in ("width", "height", "fx", "fy"):
+        v = table.column(c).to_numpy(zero_copy_only=False)
+        if (v <= 0).any():
+            raise BundleError(path, f"'{c}' must be > 0, got {v[v <= 0][0]!r}")

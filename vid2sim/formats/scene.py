@@ -95,6 +95,8 @@ def check_scene_json(scene: Any, where: PathLike = SCENE_JSON) -> dict:
         raise BundleError(where, "world_frame.scale_source must be a non-empty string")
     if not isinstance(scene["metrics"], dict) or not all(isinstance(k, str) for k in scene["metrics"]):
         raise BundleError(where, "metrics must be an object with string keys")
+    if not _finite_json(scene["metrics"]):
+        raise BundleError(where, "metrics must hold finite numbers (NaN/inf are not JSON)")
     pipe = _check_keys(scene["pipeline"], PIPELINE_REQUIRED, PIPELINE_OPTIONAL, where, "pipeline")
     if not isinstance(pipe["config"], dict):
         raise BundleError(where, "pipeline.config must be an object")
@@ -109,12 +111,30 @@ def check_scene_json(scene: Any, where: PathLike = SCENE_JSON) -> dict:
     return scene
 
 
+def _no_constant(name: str) -> None:
+    raise ValueError(f"non-finite number {name} in scene.json")
+
+
+def _finite_json(obj: Any) -> bool:
+    if isinstance(obj, float):
+        return math.isfinite(obj)
+    if isinstance(obj, dict):
+        return all(_finite_json(v) for v in obj.values())
+    if isinstance(obj, (list, tuple)):
+        return all(_finite_json(v) for v in obj)
+    return True
+
+
 def read_scene_json(path: Path) -> dict:
     if not path.is_file():
         raise BundleError(path, "missing scene.json")
     try:
-        scene = json.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        scene = json.loads(path.read_text(), parse_constant=_no_constant)
+    except ValueError as e:
+        if str(e).startswith("non-finite"):
+            raise BundleError(path, f"{e} (strict JSON has none; metrics must be finite numbers)") from None
+        raise BundleError(path, f"unreadable JSON ({e})") from None
+    except OSError as e:
         raise BundleError(path, f"unreadable JSON ({e})") from None
     return check_scene_json(scene, path)
 

@@ -49,7 +49,22 @@ def check_splats(path: Path) -> tuple[int, tuple[float, ...]]:
     n = int(vertex.count)
     if n == 0:
         raise BundleError(path, "PLY holds no Gaussians")
+    _check_values(path, vertex, names)
     xyz = np.stack([np.asarray(vertex[c], np.float64) for c in ("x", "y", "z")], 1)  # [N, 3]
-    if not np.isfinite(xyz).all():
-        raise BundleError(path, "non-finite splat positions")
     return n, tuple(float(v) for v in (*xyz.min(0), *xyz.max(0)))
+
+
+def _check_values(path: Path, vertex, names: list[str]) -> None:
+    """Every Gaussian parameter finite and every rotation quaternion non-zero."""
+    groups = {"positions": ("x", "y", "z"), "opacities": ("opacity",), "scales": ("scale_0", "scale_1", "scale_2"),
+              "rotations": ("rot_0", "rot_1", "rot_2", "rot_3"),
+              "colours": tuple(n for n in names if n.startswith(("f_dc_", "f_rest_")))}
+    for label, cols in groups.items():
+        for c in cols:
+            bad = int(np.count_nonzero(~np.isfinite(np.asarray(vertex[c], np.float64))))
+            if bad:
+                raise BundleError(path, f"non-finite splat {label}: {bad} NaN/inf value(s) in '{c}'")
+    quat = np.stack([np.asarray(vertex[c], np.float64) for c in groups["rotations"]], 1)
+    zero = int(np.count_nonzero(np.abs(quat).sum(1) == 0))
+    if zero:
+        raise BundleError(path, f"{zero} splat(s) with a zero rotation quaternion (rot_0..rot_3 all 0)")

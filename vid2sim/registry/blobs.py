@@ -1,7 +1,9 @@
 """Content-addressed blob store: `<root>/blobs/ab/cdef...` keyed by sha256.
 
 Writes go to `<root>/blobs/tmp/<random>` and are renamed into place, so a blob path either
-holds the full content or does not exist. Identical content is stored once. Two backends share
+holds the full content or does not exist. Before an add stores blobs it writes an intent
+(`<root>/blobs/intents/<id>.json`: the scene and the blob hashes) and removes it after its
+commit, so a blob that no manifest row and no intent accounts for means lost history. Identical content is stored once. Two backends share
 one small interface: `LocalBlobStore` (a folder; os.replace + fsync) and `ArrowBlobStore` (any
 pyarrow FileSystem, including fsspec filesystems wrapped by `pyarrow.fs.FSSpecHandler`).
 """
@@ -9,6 +11,7 @@ pyarrow FileSystem, including fsspec filesystems wrapped by `pyarrow.fs.FSSpecHa
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import time
 import uuid
@@ -19,6 +22,7 @@ from typing import BinaryIO, Iterator
 
 CHUNK = 1 << 20
 TMP_DIR = "tmp"
+INTENT_DIR = "intents"  # one JSON per add in flight: the blobs it stores before its commit
 
 
 def sha256_file(path: Path) -> tuple[str, int]:
@@ -60,7 +64,17 @@ class BlobStore(ABC):
 
     @abstractmethod
     def put_file(self, path: Path, sha: str) -> bool:
-        """Store `path` under `sha` (its precomputed hash); False if already present."""
+        """Store `path` under `sha` (its precomputed hash); False if an intact copy is present.
+
+        A stored copy with the wrong size or hash (bit rot, a tampered file) is rewritten."""
+
+    def intact(self, sha: str, size: int) -> bool:
+        """The stored blob exists, has `size` bytes and hashes to `sha`."""
+        try:
+            got, n = self.rehash(sha)
+        except (FileNotFoundError, OSError):
+            return False
+        return got == sha and n == size
 
     @abstractmethod
     def open(self, sha: str) -> BinaryIO: ...
@@ -70,6 +84,17 @@ class BlobStore(ABC):
 
     @abstractmethod
     def delete(self, info: BlobInfo) -> None: ...
+
+    @abstractmethod
+    def write_intent(self, name: str, data: dict) -> None:
+        """Atomically write intent `name` (JSON)."""
+
+    @abstractmethod
+    def intents(self) -> list[tuple[str, dict, float]]:
+        """(name, content, mtime) of every readable intent."""
+
+    @abstractmethod
+    def delete_intent(self, name: str) -> None: ...
 
     def rehash(self, sha: str) -> tuple[str, int]:
         with self.open(sha) as f:
@@ -105,7 +130,7 @@ class LocalBlobStore(BlobStore):
 
     def put_file(self, path: Path, sha: str) -> bool:
         final = self.path(sha)
-        if final.is_file():
+        if final.is_file() and final.stat().st_size == os.path.getsize(path) and self.intact(sha, final.stat().st_size):
             os.utime(final)  # refresh mtime so gc's grace period protects a blob about to be referenced
             return False
         tmp_dir = self.root / TMP_DIR
@@ -149,6 +174,26 @@ class LocalBlobStore(BlobStore):
         p = self.root / TMP_DIR / info.sha256 if info.is_temp else self.path(info.sha256)
         p.unlink(missing_ok=True)
 
+    def write_intent(self, name: str, data: dict) -> None:
+        d = self.root / INTENT_DIR
+        d.mkdir(parents=True, exist_ok=True)
+        tmp = d / f".{name}.tmp"
+        tmp.write_text(json.dumps(data))
+        os.replace(tmp, d / f"{name}.json")
+
+    def intents(self) -> list[tuple[str, dict, float]]:
+        d = self.root / INTENT_DIR
+        out = []
+        for p in sorted(d.glob("*.json")) if d.is_dir() else []:
+            try:
+                out.append((p.stem, json.loads(p.read_text()), p.stat().st_mtime))
+            except (FileNotFoundError, ValueError):  # removed meanwhile / torn by a crash
+                continue
+        return out
+
+    def delete_intent(self, name: str) -> None:
+        (self.root / INTENT_DIR / f"{name}.json").unlink(missing_ok=True)
+
 
 class ArrowBlobStore(BlobStore):
     """Blobs on any `pyarrow.fs.FileSystem` (S3, GCS, HDFS, local, or fsspec via FSSpecHandler)."""
@@ -165,7 +210,7 @@ class ArrowBlobStore(BlobStore):
         return self.fs.get_file_info(self.path(sha)).type == pafs.FileType.File
 
     def put_file(self, path: Path, sha: str) -> bool:
-        if self.exists(sha):
+        if self.exists(sha) and self.intact(sha, os.path.getsize(path)):
             return False
         tmp = f"{self.base}/{TMP_DIR}/{uuid.uuid4().hex}"
         final = self.path(sha)
@@ -204,6 +249,34 @@ class ArrowBlobStore(BlobStore):
     def delete(self, info: BlobInfo) -> None:
         p = f"{self.base}/{TMP_DIR}/{info.sha256}" if info.is_temp else self.path(info.sha256)
         self.fs.delete_file(p)
+
+    def write_intent(self, name: str, data: dict) -> None:
+        self.fs.create_dir(f"{self.base}/{INTENT_DIR}", recursive=True)
+        with self.fs.open_output_stream(f"{self.base}/{INTENT_DIR}/{name}.json") as out:
+            out.write(json.dumps(data).encode())
+
+    def intents(self) -> list[tuple[str, dict, float]]:
+        import pyarrow.fs as pafs
+
+        sel = pafs.FileSelector(f"{self.base}/{INTENT_DIR}", allow_not_found=True)
+        out = []
+        for info in self.fs.get_file_info(sel):
+            if info.type != pafs.FileType.File or not info.path.endswith(".json"):
+                continue
+            try:
+                with self.fs.open_input_stream(info.path) as f:
+                    data = json.loads(f.read())
+            except (OSError, ValueError):
+                continue
+            mtime = info.mtime.timestamp() if info.mtime is not None else time.time()
+            out.append((info.path.rsplit("/", 1)[1][:-5], data, mtime))
+        return out
+
+    def delete_intent(self, name: str) -> None:
+        try:
+            self.fs.delete_file(f"{self.base}/{INTENT_DIR}/{name}.json")
+        except FileNotFoundError:
+            pass
 
 
 def arrow_filesystem(uri: str):

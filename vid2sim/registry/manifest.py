@@ -16,13 +16,18 @@ files tombstoned more than H hours ago, after which versions older than that can
 
 from __future__ import annotations
 
+import json
 import logging
 import random
+import re
 import time
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import Callable, Optional, Union
 
 import pyarrow as pa
+
+from vid2sim.registry.errors import HistoryLost
 
 ARTIFACT_TYPE = pa.struct([("name", pa.string()), ("sha256", pa.string()), ("size", pa.int64())])
 
@@ -61,6 +66,8 @@ TABLE_CONFIG = {
 AsOf = Union[None, int, str, datetime]
 
 log = logging.getLogger(__name__)
+LOG_DIR = "_delta_log"
+COMMIT_RE = re.compile(r"(\d{20})\.json")
 MIN_FULL_VACUUM_HOURS = 1  # untracked files younger than this may belong to a commit in flight
 
 
@@ -120,16 +127,32 @@ class ManifestTable:
         self.auto_compact_files = auto_compact_files  # 0 = never compact automatically
         self._dt = None
         self._cache: tuple[int, pa.Table] | None = None
+        self._checked = -1  # log files 0.._checked were seen present and non-empty
+        self.local = "://" not in uri
 
     # -- table handle
-    def _open(self):
+    def _open(self, create: bool = True):
+        """The Delta table handle; a missing table is created only when `create` (writes)."""
         from deltalake import DeltaTable
 
         if self._dt is None:
-            if not DeltaTable.is_deltatable(self.uri, storage_options=self.storage_options):
+            if not self.exists():
+                if not create:
+                    return None
                 self._create()
-            self._dt = DeltaTable(self.uri, storage_options=self.storage_options)
+            self._dt = self._guard(lambda: DeltaTable(self.uri, storage_options=self.storage_options))
         return self._dt
+
+    def _guard(self, fn):
+        """Run a delta-rs call; its errors on a damaged log become one named HistoryLost line."""
+        from deltalake.exceptions import DeltaError
+
+        try:
+            return fn()
+        except (DeltaError, OSError) as e:
+            first = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
+            raise HistoryLost(f"{self.uri}: manifest log unreadable ({first}); "
+                              f"run `vid2sim registry verify`") from None
 
     def _create(self) -> None:
         from deltalake import DeltaTable
@@ -142,29 +165,67 @@ class ManifestTable:
                 raise
 
     def exists(self) -> bool:
+        """True when the table has a log (a local log folder holding any commit file counts)."""
         from deltalake import DeltaTable
 
+        if self.local:
+            log_dir = Path(self.uri) / LOG_DIR
+            return log_dir.is_dir() and any(COMMIT_RE.fullmatch(p.name) for p in log_dir.iterdir())
         return DeltaTable.is_deltatable(self.uri, storage_options=self.storage_options)
 
-    def refresh(self) -> int:
-        dt = self._open()
-        dt.update_incremental()
-        return dt.version()
+    def refresh(self, check: bool = True) -> int:
+        """Latest version (-1 when there is no table yet); `check` raises HistoryLost on a log gap."""
+        dt = self._open(create=False)
+        if dt is None:
+            return -1
+        self._guard(dt.update_incremental)
+        v = dt.version()
+        if check and v > self._checked:
+            problems = self.log_problems(upto=v, start=self._checked + 1)
+            if problems:
+                raise HistoryLost(f"{self.uri}: {problems[0]}; run `vid2sim registry verify`")
+            self._checked = v
+        return v
 
     @property
     def version(self) -> int:
         return self.refresh()
 
+    def log_problems(self, upto: Optional[int] = None, start: int = 0, deep: bool = False) -> list[str]:
+        """Gaps, empty or (with `deep`) unparsable commit files in the log, and missing data files.
+
+        Local tables only (an object store's log is trusted). `upto` defaults to the newest file.
+        """
+        if not self.local:
+            return []
+        log_dir = Path(self.uri) / LOG_DIR
+        found = {int(m.group(1)): p for p in (log_dir.iterdir() if log_dir.is_dir() else [])
+                 if (m := COMMIT_RE.fullmatch(p.name))}
+        last = max(found, default=-1) if upto is None else upto
+        problems = [f"manifest log version {v} is missing (history has a gap)"
+                    for v in range(start, last + 1) if v not in found]
+        for v in range(start, last + 1):
+            p = found.get(v)
+            if p is not None and (p.stat().st_size == 0 or (deep and not _parses(p))):
+                kind = "empty (0 bytes)" if p.stat().st_size == 0 else "not valid JSON lines"
+                problems.append(f"manifest log version {v} is {kind}: the commit it held is lost")
+        if not problems and self._dt is not None:
+            problems += [f"manifest data file {u} is missing" for u in self._dt.file_uris()
+                         if not Path(u.removeprefix("file://")).is_file()]
+        return problems
+
     # -- reads
-    def read(self, as_of: AsOf = None) -> tuple[int, pa.Table]:
+    def read(self, as_of: AsOf = None, check: bool = True) -> tuple[int, pa.Table]:
         """(registry version, all rows) at the latest version or `as_of`."""
         from deltalake import DeltaTable
 
         as_of = parse_as_of(as_of)
         if as_of is None:
-            v = self.refresh()
+            v = self.refresh(check)
+            if v < 0:
+                return v, MANIFEST_SCHEMA.empty_table()
             if self._cache is None or self._cache[0] != v:
-                self._cache = (v, self._to_arrow(self._dt))
+                self._cache = (v, self._guard(lambda: self._to_arrow(self._dt)))
             return self._cache
         dt = DeltaTable(self.uri, storage_options=self.storage_options)
         try:
@@ -173,12 +234,16 @@ class ManifestTable:
             raise ValueError(f"as-of {as_of!s}: no such registry version or time ({e})") from None
         try:
             return dt.version(), self._to_arrow(dt)
-        except OSError as e:  # its data files were vacuumed
+        except (OSError, HistoryLost) as e:  # its data files were vacuumed
             raise ValueError(f"as-of {as_of!s}: registry version {dt.version()} is no longer readable "
                              f"(files removed by vacuum: {e})") from None
 
-    @staticmethod
-    def _to_arrow(dt) -> pa.Table:
+    def _to_arrow(self, dt) -> pa.Table:
+        if self.local:  # a missing data file aborts the process inside delta-rs: check first
+            gone = [u for u in dt.file_uris() if not Path(u.removeprefix("file://")).is_file()]
+            if gone:
+                raise HistoryLost(f"{self.uri}: manifest data file {gone[0]} is missing "
+                                  f"({len(gone)} in all); run `vid2sim registry verify`")
         t = dt.to_pyarrow_table()
         return t.select(MANIFEST_SCHEMA.names).cast(MANIFEST_SCHEMA)
 
@@ -196,6 +261,7 @@ class ManifestTable:
         from deltalake import CommitProperties, write_deltalake
         from deltalake.exceptions import CommitFailedError
 
+        self._open(create=True)
         for attempt in range(max_attempts):
             v, table = self.read()
             rows = build(v, table)
@@ -290,6 +356,13 @@ class ManifestTable:
                              f"{MIN_FULL_VACUUM_HOURS if full else 0}{' with full' if full else ''}")
         return self._open().vacuum(retention_hours=int(retention_hours), dry_run=dry_run,
                                    enforce_retention_duration=False, full=full)
+
+
+def _parses(path: Path) -> bool:
+    try:
+        return all(json.loads(line) is not None for line in path.read_text().splitlines() if line.strip())
+    except (ValueError, UnicodeDecodeError):
+        return False
 
 
 def now_utc() -> datetime:

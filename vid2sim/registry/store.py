@@ -25,6 +25,8 @@ import json
 import os
 import shutil
 import tempfile
+import time
+import uuid
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Sequence
@@ -35,7 +37,9 @@ import pyarrow as pa
 from vid2sim.registry.blobs import ArrowBlobStore, BlobStore, LocalBlobStore, arrow_filesystem, sha256_file
 from vid2sim.formats.bundle import BundleInfo, validate_bundle
 from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
-from vid2sim.registry.manifest import AsOf, ManifestTable, now_utc
+from vid2sim.registry.errors import HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
+from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS, AsOf, ManifestTable, now_utc
+from vid2sim.registry.query import QueryError, QueryLimits, run_query
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
                                       records)
 from vid2sim.registry.split import Split, SplitConfig, make_split
@@ -46,21 +50,20 @@ GC_GRACE_S = 3600.0
 
 
 @dataclass(frozen=True)
+class AddResult:
+    """What `add_result` did: the scene version, and whether the call committed nothing."""
+
+    record: SceneRecord
+    noop: bool
+
+
+@dataclass(frozen=True)
 class RegistryConfig:
     """Registry knobs (defaults suit thousands of scenes on a local disk or object store)."""
 
     # after a commit, merge the manifest's Parquet files + checkpoint when more than this many are
     # active (one file per commit: ~every 50 commits); 0 = only on explicit `compact`
     auto_compact_files: int = 50
-
-
-class RegistryError(RuntimeError):
-    """A registry operation failed; the message names the scene/file and the reason."""
-
-
-class SceneNotFound(RegistryError, KeyError):
-    def __str__(self) -> str:  # KeyError would add quotes
-        return str(self.args[0])
 
 
 def default_root() -> str:
@@ -73,6 +76,10 @@ def parse_ref(ref: str) -> tuple[str, Optional[int]]:
     if ver and not ver.isdigit():
         raise RegistryError(f"{ref}: version after '@' must be a number")
     return scene, int(ver) if ver else None
+
+
+def _refs(table: pa.Table) -> set[str]:
+    return {a["sha256"] for arts in table.column("artifacts").to_pylist() for a in arts}
 
 
 def _check_name(name: str) -> str:
@@ -112,8 +119,41 @@ class Registry:
         """Registry version = Delta table version (one per commit)."""
         return self.manifest.version
 
-    def _rows(self, as_of: AsOf = None) -> tuple[int, pa.Table]:
-        return self.manifest.read(as_of)
+    def _rows(self, as_of: AsOf = None, check: bool = True) -> tuple[int, pa.Table]:
+        """(version, all rows); a mistyped root or a lost log raise instead of reading as empty."""
+        self._check_root()
+        if not self.manifest.exists():
+            self._check_missing_log()
+        return self.manifest.read(as_of, check)
+
+    def _local_root(self) -> Optional[Path]:
+        return Path(self.root) if isinstance(self.blobs, LocalBlobStore) else None
+
+    def _check_root(self) -> None:
+        local = self._local_root()
+        if local is not None and local.exists() and not local.is_dir():
+            raise RegistryError(f"{local}: is a file, not a registry folder")
+
+    def _check_missing_log(self, write: bool = False) -> None:
+        """No manifest log: fine for a new registry, an error beside stored blobs (or, for reads, at no path)."""
+        local = self._local_root()
+        if local is not None and not local.exists():
+            if write:
+                return
+            raise RegistryNotFound(f"no registry at {local} (nothing there; `registry add` creates one)")
+        orphans = self._unaccounted(set())
+        if orphans:
+            raise HistoryLost(f"{self.root}: the manifest log is missing but the blob store holds "
+                              f"{len(orphans)} blob(s): the registry has lost its history "
+                              f"(`gc` refuses to delete them without --force)")
+
+    def _check_writable(self) -> None:
+        """Refuse to commit on top of lost history (a missing or gapped log)."""
+        self._check_root()
+        if not self.manifest.exists():
+            self._check_missing_log(write=True)
+        else:
+            self.manifest.refresh(check=True)
 
     def list(self, as_of: AsOf = None, include_deprecated: bool = False) -> list[SceneRecord]:
         """Latest version of every scene (optionally at an older registry version/time)."""
@@ -152,26 +192,17 @@ class Registry:
         return records(table.sort_by([("created_at", "ascending"), ("scene_id", "ascending"),
                                       ("version", "ascending")]))
 
-    def query(self, sql: str, as_of: AsOf = None) -> pa.Table:
-        """Run DuckDB SQL over the manifest: table `scenes` (all versions) and view `latest`."""
-        import duckdb
+    def query(self, sql: str, as_of: AsOf = None, limits: QueryLimits = QueryLimits()) -> pa.Table:
+        """Read-only DuckDB SQL over `scenes` (all versions) and `latest`; errors past `max_rows`."""
+        table, more = self.query_head(sql, as_of, limits)
+        if more:
+            raise QueryError(f"query returned more than {limits.max_rows} rows: add a LIMIT or aggregate")
+        return table
 
-        _, scenes = self._rows(as_of)
-        con = duckdb.connect()
-        try:
-            con.register("scenes", scenes)
-            con.execute("CREATE VIEW latest AS SELECT * FROM scenes "
-                        "QUALIFY row_number() OVER (PARTITION BY scene_id ORDER BY version DESC) = 1")
-            try:
-                rel = con.sql(sql)
-                if rel is None:  # a statement without a result
-                    return pa.table({})
-                fetch = getattr(rel, "to_arrow_table", None) or rel.arrow  # duckdb 2.x / 1.x
-                return fetch()
-            except duckdb.Error as e:
-                raise RegistryError(f"query failed: {e}") from None
-        finally:
-            con.close()
+    def query_head(self, sql: str, as_of: AsOf = None, limits: QueryLimits = QueryLimits()
+                   ) -> tuple[pa.Table, bool]:
+        """(first `limits.max_rows` rows, whether there were more); see `vid2sim.registry.query`."""
+        return run_query(self._rows(as_of)[1], sql, limits)
 
     def split(self, seed: int = 0, test_fraction: float = 0.2, test_groups: Optional[Sequence[str]] = None,
               train_sizes: Sequence[int] = (), tags: Sequence[str] = (),
@@ -184,18 +215,25 @@ class Registry:
         return make_split(self._latest(as_of), conf, v)
 
     # ------------------------------------------------------------------ add
-    def _store_blobs(self, info: BundleInfo) -> list[Artifact]:
-        arts = []
-        for name, path in sorted(info.artifacts.items()):
-            sha, size = sha256_file(path)
-            self.blobs.put_file(path, sha)
-            arts.append(Artifact(_check_name(name), sha, size))
-        return arts
+    def _store_blobs(self, info: BundleInfo) -> tuple[list[Artifact], str]:
+        """Write an intent naming the blobs, then store them (a bad stored copy is rewritten)."""
+        arts = [Artifact(_check_name(name), *sha256_file(path)) for name, path in sorted(info.artifacts.items())]
+        intent = uuid.uuid4().hex
+        self.blobs.write_intent(intent, {"scene_id": info.scene_id, "blobs": [a.sha256 for a in arts],
+                                         "created": time.time()})
+        for a in arts:
+            self.blobs.put_file(info.artifacts[a.name], a.sha256)
+        return arts, intent
 
     def add(self, bundle_dir: str | os.PathLike) -> SceneRecord:
         """Validate, store blobs, commit a new scene version (no-op for identical content)."""
+        return self.add_result(bundle_dir).record
+
+    def add_result(self, bundle_dir: str | os.PathLike) -> AddResult:
+        """`add`, also saying whether this call committed (`noop` is False only if it did)."""
         info = validate_bundle(bundle_dir)
-        arts = self._store_blobs(info)
+        self._check_writable()
+        arts, intent = self._store_blobs(info)
         chash = content_hash(arts)
         scene, src = info.scene, info.scene["source"]
         result: dict = {}
@@ -219,9 +257,10 @@ class Registry:
             result["rec"] = rec
             return [rec.to_row()]
 
-        self.manifest.commit(build, operation=f"add {info.scene_id}")
+        committed, _ = self.manifest.commit(build, operation=f"add {info.scene_id}")
         self._repair_blobs(info, arts)
-        return result["rec"]
+        self.blobs.delete_intent(intent)
+        return AddResult(result["rec"], noop=committed is None)
 
     def _repair_blobs(self, info: BundleInfo, arts: list[Artifact]) -> None:
         """Re-store any blob a concurrent `gc` removed between our write and our commit."""
@@ -286,8 +325,22 @@ class Registry:
 
     # ------------------------------------------------------------------ integrity
     def verify(self) -> list[str]:
-        """Re-hash every referenced blob; return problems ('missing'/'corrupt', naming the artifact)."""
-        _, table = self._rows()
+        """Problems: log gaps / damage, missing or corrupt referenced blobs, blobs nothing accounts for."""
+        problems = self.manifest.log_problems(deep=True)
+        try:
+            _, table = self._rows(check=False)
+        except HistoryLost as e:
+            return list(dict.fromkeys(problems + [str(e)]))
+        problems += [p for p, _ in self._blob_problems(table)]
+        orphans = self._unaccounted(_refs(table))
+        if orphans:
+            problems.append(f"{len(orphans)} stored blob(s) referenced by no manifest row and no add in "
+                            f"flight (lost history?): {', '.join(orphans[:3])}{' ...' if len(orphans) > 3 else ''}"
+                            f"; `gc` keeps them unless --force")
+        return list(dict.fromkeys(problems))
+
+    def _blob_problems(self, table: pa.Table) -> list[tuple[str, str]]:
+        """(problem, sha256) for every referenced blob that is missing or does not hash to its name."""
         users: dict[str, list[str]] = {}
         sizes: dict[str, int] = {}
         for r in table.select(["scene_id", "version", "artifacts"]).to_pylist():
@@ -300,29 +353,98 @@ class Registry:
             try:
                 got, size = self.blobs.rehash(sha)
             except (FileNotFoundError, OSError):
-                problems.append(f"missing blob {sha} for {where}")
+                problems.append((f"missing blob {sha} for {where}", sha))
                 continue
             if got != sha or size != sizes[sha]:
-                problems.append(f"corrupt blob {sha} (content hashes to {got}, {size} bytes) for {where}")
+                problems.append((f"corrupt blob {sha} (content hashes to {got}, {size} bytes) for {where}", sha))
         return problems
 
-    def referenced(self) -> set[str]:
+    def repair(self, sources: Sequence[str | os.PathLike]) -> list[str]:
+        """Rewrite missing or corrupt referenced blobs from files under `sources` (bundle folders).
+
+        A file is used only when its size and sha256 match the blob's. Returns what was repaired.
+        """
         _, table = self._rows()
-        return {a["sha256"] for arts in table.column("artifacts").to_pylist() for a in arts}
+        sizes = {a["sha256"]: a["size"] for arts in table.column("artifacts").to_pylist() for a in arts}
+        bad = {sha for _, sha in self._blob_problems(table)}
+        by_size: dict[int, set[str]] = {}
+        for sha in bad:
+            by_size.setdefault(sizes[sha], set()).add(sha)
+        done = []
+        for src in sources:
+            if not Path(src).is_dir():
+                raise RegistryError(f"--from {src}: not a folder")
+            for f in sorted(p for p in Path(src).rglob("*") if p.is_file()):
+                if bad and f.stat().st_size in by_size:
+                    sha = sha256_file(f)[0]
+                    if sha in bad:
+                        self.blobs.put_file(f, sha)
+                        bad.discard(sha)
+                        done.append(f"repaired blob {sha} from {f}")
+        return done
 
-    def gc(self, grace_s: float = GC_GRACE_S, dry_run: bool = False) -> list[str]:
-        """Delete blobs no manifest row (any version) references, and stale temp files, older
-        than `grace_s` seconds (protects blobs of an add still in flight). Returns what it removed."""
-        import time
+    def referenced(self, check: bool = True) -> set[str]:
+        return _refs(self._rows(check=check)[1])
 
-        refs = self.referenced()
+    def _pending(self) -> tuple[dict[str, float], dict[str, float]]:
+        """Intents of adds in flight: (sha -> newest intent mtime, intent name -> mtime)."""
+        shas: dict[str, float] = {}
+        names = {}
+        for name, data, mtime in self.blobs.intents():
+            names[name] = mtime
+            for sha in data.get("blobs", []):
+                shas[sha] = max(mtime, shas.get(sha, 0.0))
+        return shas, names
+
+    def _unaccounted(self, refs: set[str], cutoff: Optional[float] = None) -> list[str]:
+        """Stored blobs (older than `cutoff`) that no row in `refs` and no add intent accounts for.
+
+        Candidates are re-checked against fresh intents and rows: an add that started after the
+        first look has written its intent before its blobs, and removes it only after its commit.
+        """
+        pending = self._pending()[0]
+        cand = [b.sha256 for b in self.blobs.list() if not b.is_temp and b.sha256 not in refs
+                and b.sha256 not in pending and (cutoff is None or b.mtime <= cutoff)]
+        if not cand:
+            return []
+        pending = self._pending()[0]
+        now_refs = _refs(self.manifest.read(check=False)[1]) if self.manifest.exists() else set()
+        return sorted(c for c in cand if c not in pending and c not in now_refs)
+
+    def gc(self, grace_s: float = GC_GRACE_S, dry_run: bool = False, force: bool = False) -> list[str]:
+        """Delete blobs of adds that never committed, and stale temp files, older than `grace_s`.
+
+        Refuses (HistoryLost) when the log has a gap or when blobs exist that neither a manifest
+        row nor an add in flight accounts for, since that means lost history; `force` deletes
+        every unreferenced blob anyway. Returns what it removed (or would remove).
+        """
+        if not force:
+            bad = self.manifest.log_problems(deep=True)
+            if bad:
+                raise HistoryLost(f"gc refused: {bad[0]}; run `vid2sim registry verify` (--force deletes anyway)")
+        try:
+            refs = self.referenced(check=not force)
+        except HistoryLost:
+            if not force:
+                raise
+            refs = set()
         cutoff = time.time() - grace_s
+        orphans = self._unaccounted(refs, cutoff)
+        if orphans and not force:
+            raise HistoryLost(f"gc refused: {len(orphans)} blob(s) are referenced by no manifest row and no add "
+                              f"in flight, so the manifest may have lost history; run `vid2sim registry verify` "
+                              f"(--force deletes them)")
+        pending, names = self._pending()
         removed = []
         for b in list(self.blobs.list()):
-            if (b.is_temp or b.sha256 not in refs) and b.mtime <= cutoff:
+            fresh = pending.get(b.sha256, 0.0) > cutoff
+            if b.mtime <= cutoff and (b.is_temp or (b.sha256 not in refs and not fresh)):
                 if not dry_run:
                     self.blobs.delete(b)
                 removed.append(("tmp/" if b.is_temp else "") + b.sha256)
+        for name, mtime in names.items():
+            if mtime <= cutoff and not dry_run:
+                self.blobs.delete_intent(name)
         return removed
 
     def compact(self, vacuum_hours: Optional[int] = None, dry_run: bool = False) -> dict:
@@ -335,8 +457,6 @@ class Registry:
         """
         metrics = self._compact_retrying()  # non-destructive: always runs
         if vacuum_hours is not None:
-            from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS
-
             metrics["vacuumed"] = self.manifest.vacuum(vacuum_hours, dry_run=dry_run,
                                                        full=vacuum_hours >= MIN_FULL_VACUUM_HOURS)
         return metrics
@@ -363,6 +483,8 @@ class Registry:
         """
         rec = self.show(check_scene_id(scene_id), version, as_of=as_of)
         out = Path(dest) if dest is not None else Path("vid2sim-checkouts") / rec.ref
+        if out.exists() and not out.is_dir():
+            raise RegistryError(f"{out}: checkout destination is a file, not a folder")
         marker = out / CHECKOUT_MARKER
         if marker.is_file():
             done = json.loads(marker.read_text())

@@ -27,6 +27,8 @@ from typing import Optional
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from vid2sim.factory.sfm.posed import PosedClip
+
 GL_TO_CV = np.diag([1.0, -1.0, -1.0])  # flips camera y and z (OpenGL <-> OpenCV axes)
 
 
@@ -143,7 +145,6 @@ def load_kitti_poses(path: Path) -> Trajectory:
 
 def load_posed_clip(folder: Path) -> Trajectory:
     """A PosedClip folder (cameras.parquet) or a synthetic clip (same files + ground_truth.json)."""
-    from vid2sim.factory.sfm.posed import PosedClip
     folder = Path(folder)
     if not (folder / "cameras.parquet").is_file():
         raise PoseEvalError(folder, "no cameras.parquet (not a PosedClip / synthetic clip folder)")

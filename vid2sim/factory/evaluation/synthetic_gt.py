@@ -12,13 +12,16 @@ import json
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.poses import ate
-from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays, \
-    sample_surface
+from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import sample_surface
+from vid2sim.factory.geometry.meshing import backproject
+from vid2sim.factory.geometry.raycast import RaycastRenderer
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
-from vid2sim.factory.synthetic.street import generate_street
+from vid2sim.factory.synthetic.street import StreetScene, generate_street
 from vid2sim.formats.walkable import WalkableGrid
 
 
@@ -62,14 +65,53 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     rec = s * sample_surface(*mesh_arrays(collision), samples) @ R.T + t  # [S, 3] in GT frame
     dist = distance_to_mesh(rec, *scene.without_ground())  # [S] to the GT obstacles (no ground)
     shifted = WalkableGrid(walkable.grid, walkable.origin + t[:2], walkable.resolution)  # R ~ I, s ~ 1
-    g, o, r = scene.walkable_grid(pad=robot_radius_m)
+    g, o, r = scene.walkable_grid()  # footprints only: erode_walkable adds the robot radius
     gt_map = erode_walkable(WalkableGrid(g, o, r), robot_radius_m)
     path = s * src @ R.T + t
     x0, x1 = path[:, 0].min() + unseen_m, path[:, 0].max()
+    near = near_path_figures(rec, dist, path, gt_clip, scene, collision_mesh_gt(collision, s, R, t))
     return {"matched_frames": len(frames), "ate_m": pose["rmse"], "ate_pct_of_path": pose["rmse_pct_of_path"],
             "metric_scale_error_pct": 100 * abs(s - 1.0),
             "collision_accuracy_m": float(dist.mean()),
             "collision_accuracy_median_m": float(np.median(dist)),
             "ground_left_frac": float(np.mean((rec[:, 2] < 0.15) & (dist > 0.2))),
             "walkable_iou": grid_iou(crop_x(shifted, x0, x1), crop_x(gt_map, x0, x1)),
-            "iou_x_range": [float(x0), float(x1)], "walkable_area_m2": walkable.area_m2()}
+            "iou_x_range": [float(x0), float(x1)], "walkable_area_m2": walkable.area_m2(), **near}
+
+
+def collision_mesh_gt(collision: MeshLike, s: float, R: np.ndarray, t: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [V, 3] in the GT frame, faces [F, 3]) of the reconstructed collision mesh."""
+    v, f = mesh_arrays(collision)
+    return s * v @ R.T + t, f
+
+
+def visible_obstacle_points(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
+                            scale: float = 0.25, max_depth_m: float = 8.0) -> np.ndarray:
+    """GT obstacle surface [P, 3] seen by the GT cameras (ray cast of the whole street at a
+    reduced resolution, hits kept where they lie on the obstacles, not the ground)."""
+    rend = RaycastRenderer((scene.vertices, scene.triangles))
+    pts = []
+    for f in gt_clip.frames[::every]:
+        K = np.asarray(f.K, np.float64).copy()
+        K[:2] *= scale
+        w, h = int(round(f.width * scale)), int(round(f.height * scale))
+        o = rend.render(K, f.cam_to_world, w, h)
+        keep = (o.depth > 0) & (o.depth < max_depth_m)
+        pts.append(backproject(o.depth, K, f.cam_to_world)[keep])
+    p = np.concatenate(pts)  # [P, 3]
+    return p[distance_to_mesh(p, *scene.without_ground()) < 0.01]
+
+
+def near_path_figures(rec: np.ndarray, dist: np.ndarray, path: np.ndarray, gt_clip: PosedClip,
+                      scene: StreetScene, mesh_gt: tuple, radius_m: float = 5.0,
+                      tol_m: float = 0.1) -> dict:
+    """Collision accuracy (median) and completeness (visible GT obstacle surface within tol_m
+    of the mesh) for geometry within radius_m (horizontal) of the walked path (GT frame)."""
+    tree = cKDTree(path[:, :2])
+    near_rec = tree.query(rec[:, :2])[0] <= radius_m
+    gt = visible_obstacle_points(gt_clip, scene)
+    gt = gt[tree.query(gt[:, :2])[0] <= radius_m]
+    d_gt = distance_to_mesh(gt, *mesh_gt) if len(gt) else np.zeros(0)
+    return {"near_path_accuracy_median_m": float(np.median(dist[near_rec])) if near_rec.any() else float("nan"),
+            "near_path_completeness": float(np.mean(d_gt <= tol_m)) if len(d_gt) else float("nan")}

@@ -39,10 +39,28 @@ from typing import Iterable, Optional
 import numpy as np
 import open3d as o3d
 
+from vid2sim.factory.geometry.carving import CarveConfig, free_space, keep_mask
+from vid2sim.factory.geometry.mesh_ops import remove_fragments, simplify, tidy
+from vid2sim.factory.geometry.raycast import pixel_rays_cam
+from vid2sim.factory.geometry.visual_mesh import make_visual_mesh
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+@dataclass(frozen=True)
+class MeshingOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    collision: str = "collision.ply"  # ground removed
+    visual: str = "visual_mesh.ply"  # with the ground, vertex colours
+    ground_points: str = "ground_points.npy"  # [N, 3] float32
+    summary: str = "meshing.json"
+
+
+OUTPUTS = MeshingOutputs()
+
 
 
 class MeshingError(StageError):
@@ -81,6 +99,8 @@ class MeshingConfig:
     target_faces: int = 100_000  # physics-friendly collision mesh (quadric decimation)
     visual_target_faces: int = 300_000  # visual (coloured) mesh budget
     ground_point_cell_m: float = 0.05  # ground points kept: one per xy cell of this size
+    # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
+    carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
 
 
 @dataclass
@@ -141,7 +161,6 @@ def check_view(view: DepthView, idx: int) -> np.ndarray:
 
 def backproject(depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> np.ndarray:
     """World points [H, W, 3] of every pixel (pixel centres at +0.5, camera z depth)."""
-    from vid2sim.factory.geometry.raycast import pixel_rays_cam
 
     H, W = depth.shape
     pts_cam = pixel_rays_cam(K, W, H) * depth[..., None].astype(np.float64)  # [H, W, 3]
@@ -214,19 +233,39 @@ def _new_volume(conf: MeshingConfig) -> o3d.pipelines.integration.ScalableTSDFVo
         color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
 
 
-def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
-    """Fuse views into two TSDFs in one pass (visual: all pixels, collision: no ground).
+def clamped_depth(view: DepthView, idx: int, conf: MeshingConfig) -> np.ndarray:
+    """Validated depth [H, W] float32 with invalid or out-of-range pixels set to 0."""
+    valid = check_view(view, idx)
+    depth = np.where(valid, view.depth, 0.0).astype(np.float32)
+    depth[(depth < conf.depth_min_m) | (depth > conf.depth_max_m)] = 0.0
+    return depth
 
-    `views` may be a lazy generator (e.g. rendering splats view by view): it is read once.
-    Raises MeshingError when there are no views or no valid depth at all.
+
+def carved_depths(views: list[DepthView], conf: MeshingConfig) -> list[np.ndarray]:
+    """Depth [H, W] per view with the pixels in proven-empty space removed (conf.carve)."""
+    depths = [clamped_depth(v, i, conf) for i, v in enumerate(views)]
+    if conf.carve is None or not depths or not any(d.any() for d in depths):
+        return depths
+    Ks = [np.asarray(v.K, np.float64) for v in views]
+    c2ws = [np.asarray(v.cam_to_world, np.float64) for v in views]
+    space = free_space(depths, Ks, c2ws, conf.depth_max_m, conf.carve)
+    carved = space.carved(conf.carve)
+    return [np.where(keep_mask(d, K, c, space, carved, conf.carve), d, 0.0).astype(np.float32)
+            for d, K, c in zip(depths, Ks, c2ws)]
+
+
+def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
+    """Fuse views into two TSDFs (visual: all pixels, collision: no ground), after carving.
+
+    `views` may be a lazy generator (e.g. rendering splats view by view); carving needs every
+    view twice, so they are held in memory. Raises MeshingError when there are no views or
+    no valid depth at all.
     """
+    views = list(views)
     vol_vis, vol_col = _new_volume(conf), _new_volume(conf)
     ground_pts: list[np.ndarray] = []
-    n_views = n_valid = n_ground = 0
-    for idx, view in enumerate(views):
-        valid = check_view(view, idx)
-        depth = np.where(valid, view.depth, 0.0).astype(np.float32)
-        depth[(depth < conf.depth_min_m) | (depth > conf.depth_max_m)] = 0.0
+    n_valid = n_ground = 0
+    for view, depth in zip(views, carved_depths(views, conf)):
         valid = depth > 0
         H, W = depth.shape
         rgb = view.rgb if view.rgb is not None else np.full((H, W, 3), 128, np.uint8)
@@ -237,17 +276,16 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
         vol_col.integrate(_rgbd(np.where(gmask, 0.0, depth), rgb, conf), intr, extr)
         pts = backproject(depth, view.K, view.cam_to_world)[gmask]  # [P, 3]
         ground_pts.append(thin_xy(pts, conf.ground_point_cell_m))
-        n_views += 1
         n_valid += int(valid.sum())
         n_ground += int(gmask.sum())
-    if n_views == 0:
+    if not views:
         raise MeshingError("no_views", "no depth views were given")
     if n_valid == 0:
-        raise MeshingError("no_valid_depth", f"all {n_views} depth views are empty or invalid "
+        raise MeshingError("no_valid_depth", f"all {len(views)} depth views are empty or invalid "
                            f"(range {conf.depth_min_m}..{conf.depth_max_m} m)")
     gp = thin_xy(np.concatenate(ground_pts), conf.ground_point_cell_m)
     return FusionResult(vol_vis.extract_triangle_mesh(), vol_col.extract_triangle_mesh(), gp,
-                        n_views, n_valid, n_ground)
+                        len(views), n_valid, n_ground)
 
 
 def thin_xy(pts: np.ndarray, cell_m: float) -> np.ndarray:
@@ -304,44 +342,6 @@ def mesh_ground_points(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig) -> 
     return thin_xy(v, conf.ground_point_cell_m)
 
 
-def remove_fragments(mesh: o3d.geometry.TriangleMesh, min_faces: int, min_extent_m: float
-                     ) -> o3d.geometry.TriangleMesh:
-    """Drop connected components with < min_faces faces or a bbox diagonal < min_extent_m."""
-    if len(mesh.triangles) == 0:
-        return mesh
-    labels, counts, _ = mesh.cluster_connected_triangles()
-    labels, counts = np.asarray(labels), np.asarray(counts)
-    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    pts = v[f].reshape(-1, 3)  # [3F, 3]
-    lab3 = np.repeat(labels, 3)
-    k = len(counts)
-    lo = np.full((k, 3), np.inf)
-    hi = np.full((k, 3), -np.inf)
-    np.minimum.at(lo, lab3, pts)
-    np.maximum.at(hi, lab3, pts)
-    diag = np.linalg.norm(hi - lo, axis=1)  # [k]
-    keep_cluster = (counts >= min_faces) & (diag >= min_extent_m)
-    mesh.remove_triangles_by_mask(~keep_cluster[labels])
-    mesh.remove_unreferenced_vertices()
-    return mesh
-
-
-def simplify(mesh: o3d.geometry.TriangleMesh, target_faces: int) -> o3d.geometry.TriangleMesh:
-    """Quadric decimation to at most `target_faces` faces (no-op when already small)."""
-    if target_faces <= 0 or len(mesh.triangles) <= target_faces:
-        return mesh
-    out = mesh.simplify_quadric_decimation(target_number_of_triangles=int(target_faces))
-    return tidy(out)
-
-
-def tidy(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
-    mesh.remove_duplicated_vertices()
-    mesh.remove_degenerate_triangles()
-    mesh.remove_duplicated_triangles()
-    mesh.remove_unreferenced_vertices()
-    return mesh
-
-
 def clean_collision_mesh(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig
                          ) -> o3d.geometry.TriangleMesh:
     """Ground-face filter, fragment removal, then simplification to the target size."""
@@ -356,7 +356,6 @@ def clean_collision_mesh(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig
 
 def build_meshes(views: Iterable[DepthView], conf: MeshingConfig) -> MeshingResult:
     """Fusion + cleanup: the whole meshing computation without touching disk."""
-    from vid2sim.factory.geometry.visual_mesh import make_visual_mesh
 
     with Timer() as t_fuse:
         fused = fuse_tsdf(views, conf)
@@ -392,16 +391,16 @@ def main(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path,
     may be a lazy generator, only consumed when the stage actually runs.
     """
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf, input_key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
     if not overwrite and is_done(out_dir, key):
         return out_dir
     with Timer() as t:
         res = build_meshes(views, conf)
     fresh_dir(out_dir)
-    save_mesh(res.collision, out_dir / "collision.ply")
-    save_mesh(res.visual, out_dir / "visual_mesh.ply")
-    np.save(out_dir / "ground_points.npy", res.ground_points.astype(np.float32))
-    (out_dir / "meshing.json").write_text(json.dumps(
+    save_mesh(res.collision, out_dir / OUTPUTS.collision)
+    save_mesh(res.visual, out_dir / OUTPUTS.visual)
+    np.save(out_dir / OUTPUTS.ground_points, res.ground_points.astype(np.float32))
+    (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": res.summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, res.summary, t.seconds)
     return out_dir

@@ -8,7 +8,7 @@ chosen scale of the frame resolution. Pixels with low alpha are invalid.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterator
+from typing import Iterator, Optional
 
 import numpy as np
 import torch
@@ -29,17 +29,31 @@ class SplatViewConfig:
     min_alpha: float = 0.5  # pixels with lower accumulated opacity are invalid
     every: int = 2  # use every n-th training frame
     backend: str = "auto"
+    # floater controls for meshing depth (off by default: see the meshing ablation in README):
+    # splats below this opacity are not rendered, and the paper's screen-space covariance
+    # culling drops splats whose 2D covariance exceeds alpha * H * W
+    min_opacity: float = 0.0
+    cov_cull_alpha: Optional[float] = None
+
+
+def meshing_model(model: GaussianModel, conf: SplatViewConfig) -> GaussianModel:
+    """The splats rendered for meshing: those with opacity >= conf.min_opacity."""
+    if conf.min_opacity <= 0:
+        return model
+    return model.index(model.opacities >= conf.min_opacity)
 
 
 def render_views(model: GaussianModel, clip: PosedClip, conf: SplatViewConfig,
                  split: str = "train") -> Iterator[DepthView]:
     """Render depth/normal/RGB for the clip's `split` frames (lazily, one at a time)."""
     frames = clip.split(split)[:: max(1, conf.every)]
+    model = meshing_model(model, conf)
     with torch.no_grad():
         for frame in frames:
             cam = Camera.from_cam_to_world(frame.K, frame.cam_to_world, frame.width, frame.height)
             cam = cam.scaled(conf.scale)
             settings = RasterSettings(width=cam.width, height=cam.height,
+                                      cov_cull_alpha=conf.cov_cull_alpha,
                                       active_sh_degree=model.sh_degree)
             out = render(model, cam, settings, background=(0.0, 0.0, 0.0), backend=conf.backend)
             alpha = out.alpha.numpy()  # [H, W]

@@ -1,6 +1,6 @@
 """Vertex-coloured visual mesh: the paper's mesh-RGB baseline (Video2Game-like observations).
 
-Made from the same TSDF fusion as the collision mesh (meshing.fuse_tsdf) but keeping the
+Made from the same TSDF fusion as the collision mesh (meshing.fuse_tsdf, which calls it) but keeping the
 ground; written as `visual_mesh.ply` (binary PLY, per-vertex red/green/blue uint8). The
 baseline renders it with `render_rgb` (CPU ray casting) or any mesh renderer.
 """
@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import open3d as o3d
 
+from vid2sim.factory.geometry.mesh_ops import remove_fragments, simplify, tidy
 from vid2sim.factory.geometry.raycast import RaycastRenderer
 
 
@@ -21,8 +22,6 @@ def make_visual_mesh(mesh: o3d.geometry.TriangleMesh, target_faces: int = 300_00
 
     Quadric decimation in open3d carries vertex colours along.
     """
-    from vid2sim.factory.geometry.meshing import remove_fragments, simplify, tidy
-
     mesh = tidy(mesh)
     mesh = remove_fragments(mesh, min_fragment_faces, 0.0)
     mesh = simplify(mesh, target_faces)

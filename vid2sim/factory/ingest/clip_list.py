@@ -12,7 +12,8 @@ Formats: YAML (a list of rows, or `{sources: [...]}`), CSV, Parquet. One row:
   sha256          expected content hash of the source (checked when given)
 
 Relative source paths are resolved against the manifest's folder. A bad row raises
-`StageError("manifest", reason)`: `missing_fields`, `bad_window`, `bad_value`,
+`StageError("manifest", reason)`: `missing_fields`, `bad_window`, `bad_value`, `bad_yaml`,
+`unknown_field` (a column that looks like a misspelled field; other extra columns are tags),
 `unknown_format`, `empty_manifest`, `missing_manifest`.
 """
 
@@ -65,7 +66,12 @@ def _read_records(path: Path) -> list[dict]:
     if suffix in (".yaml", ".yml"):
         import yaml
 
-        data = yaml.safe_load(path.read_text()) or []
+        try:
+            data = yaml.safe_load(path.read_text()) or []
+        except yaml.YAMLError as e:
+            mark = getattr(e, "problem_mark", None)
+            at = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+            raise StageError(STAGE, "bad_yaml", f"{path}: not valid YAML{at} ({getattr(e, 'problem', e)})") from None
         if isinstance(data, dict):
             data = data.get("sources", [])
         if not isinstance(data, list) or not all(isinstance(r, dict) for r in data):
@@ -89,9 +95,12 @@ def _float(v: Any, name: str, where: str) -> Optional[float]:
     if _empty(v):
         return None
     try:
-        return float(v)
+        x = float(v)
     except (TypeError, ValueError):
         raise StageError(STAGE, "bad_value", f"{where}: {name}={v!r} is not a number") from None
+    if not math.isfinite(x):
+        raise StageError(STAGE, "bad_value", f"{where}: {name}={v!r} is not a finite number")
+    return x
 
 
 def parse_row(rec: dict, index: int, base: Path = Path("."), origin: str = "manifest") -> ManifestRow:
@@ -105,22 +114,38 @@ def parse_row(rec: dict, index: int, base: Path = Path("."), origin: str = "mani
     missing = [k for k in REQUIRED if _empty(rec.get(k))]
     if missing:
         raise StageError(STAGE, "missing_fields", f"{where}: missing {', '.join(missing)}")
+    _check_spelling(rec, where)
     start, end = _float(rec.get("start"), "start", where), _float(rec.get("end"), "end", where)
     if (start is None) != (end is None) or (start is not None and (start < 0 or end <= start)):
         raise StageError(STAGE, "bad_window", f"{where}: start={start} end={end} (need 0 <= start < end)")
-    height = _float(rec.get("capture_height"), "capture_height", where) or DEFAULT_CAPTURE_HEIGHT
+    height = _float(rec.get("capture_height"), "capture_height", where)
+    height = DEFAULT_CAPTURE_HEIGHT if height is None else height
     if height <= 0:
         raise StageError(STAGE, "bad_value", f"{where}: capture_height={height} must be > 0")
     source = str(rec["source"]).strip()
     if not is_uri(source) and not Path(source).is_absolute():
         source = str((Path(base) / source).resolve())
     group = str(rec.get("group")).strip() if not _empty(rec.get("group")) else _stem(source)
-    known = {"source", "licence", "start", "end", "group", "capture_height", "sha256", "city", "weather"}
     tags.update({k: rec[k] for k in TAG_FIELDS if not _empty(rec.get(k))})
-    tags.update({k: v for k, v in rec.items() if k not in known and not _empty(v)})
+    tags.update({k: v for k, v in rec.items() if k not in KNOWN and not _empty(v)})
     sha = None if _empty(rec.get("sha256")) else str(rec["sha256"]).strip().lower()
     return ManifestRow(source=source, licence=str(rec["licence"]), group=group, start=start, end=end,
                        capture_height=height, tags=tags, sha256=sha)
+
+
+KNOWN = ("source", "licence", "start", "end", "group", "capture_height", "sha256", "city", "weather")
+
+
+def _check_spelling(rec: dict, where: str) -> None:
+    """Extra columns are tags, but one that looks like a misspelled field is an error."""
+    import difflib
+
+    for k in rec:
+        if k in KNOWN:
+            continue
+        close = difflib.get_close_matches(str(k).lower(), KNOWN, n=1, cutoff=0.75)
+        if close:
+            raise StageError(STAGE, "unknown_field", f"{where}: unknown field {k!r} (did you mean {close[0]!r}?)")
 
 
 def _stem(source: str) -> str:

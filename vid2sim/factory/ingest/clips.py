@@ -23,7 +23,7 @@ DEFAULT_CLIP_SECONDS = 15.0
 
 
 @dataclass(frozen=True)
-class ClipsConf:
+class ClipsConfig:
     clip_seconds: float = DEFAULT_CLIP_SECONDS
     min_seconds: float = 4.0
 
@@ -58,7 +58,7 @@ def clip_id(source: Source, window: Optional[tuple[float, float]]) -> str:
     return f"{source.sha256[:12]}-{hashlib.sha256(w.encode()).hexdigest()[:6]}"
 
 
-def plan_clips(row: ManifestRow, source: Source, conf: ClipsConf = ClipsConf()) -> list[ClipSpec]:
+def plan_clips(row: ManifestRow, source: Source, conf: ClipsConfig = ClipsConfig()) -> list[ClipSpec]:
     """Clips of one manifest row (its window, or N-second pieces of the whole video)."""
     if source.kind == "images":
         windows: list = [None]
@@ -71,7 +71,7 @@ def plan_clips(row: ManifestRow, source: Source, conf: ClipsConf = ClipsConf()) 
             for w in windows]
 
 
-def plan_manifest(path: Path, conf: ClipsConf = ClipsConf(), cache_dir: Optional[Path] = None,
+def plan_manifest(path: Path, conf: ClipsConfig = ClipsConfig(), cache_dir: Optional[Path] = None,
                   ) -> tuple[list[ClipSpec], list[tuple[ManifestRow, StageError]]]:
     """All clips of a manifest, and the rows whose source failed (a bad source does not
     stop the others; a malformed manifest row raises, since the manifest itself is wrong)."""

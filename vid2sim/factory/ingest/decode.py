@@ -9,9 +9,9 @@ Writes into `out_dir`:
                      reason (null | black | blur | duplicate), faces
   clip.json          source uri + sha256, window, source fps/size, sample fps, size,
                      counts, face-detector facts, config
-  stage.json         the done-marker (stage.py)
+  stage.json         the done-marker (runtime/stage_cache.py)
 
-Filters (defaults, see DecodeConf):
+Filters (defaults, see DecodeConfig):
   sampling   10 fps (the paper uses 30 fps x 15 s = 450 frames; 10 fps keeps 1/3 of the
              frames, enough overlap for SfM at walking speed and 3x cheaper on CPU)
   blur       variance of the Laplacian below 0.35 x the clip median (relative, so it
@@ -38,17 +38,30 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConf
+from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_video
 from vid2sim.versioning import to_jsonable
 
 STAGE = "decode"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+@dataclass(frozen=True)
+class DecodeOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    images: str = "images"  # NNNNNN.jpg, faces blurred
+    frames: str = "frames.parquet"  # one row per sampled frame
+    clip: str = "clip.json"
+
+
+OUTPUTS = DecodeOutputs()
+
 
 
 @dataclass(frozen=True)
-class DecodeConf:
+class DecodeConfig:
     fps: float = 10.0  # target sampling rate; >= source fps keeps every frame
     max_side: int = 1024  # long side of written frames (never upscaled)
     blur_rel: float = 0.35  # drop if Laplacian variance < blur_rel * clip median
@@ -60,15 +73,21 @@ class DecodeConf:
     analysis_width: int = 320  # width of the grey copy used for optical flow
     jpeg_quality: int = 95
     image_fps: float = 1.0  # nominal rate for image-folder timestamps (index / image_fps)
-    faces: FaceConf = field(default_factory=FaceConf)
+    faces: FaceConfig = field(default_factory=FaceConfig)
     workers: int = 2  # processes for face detection + JPEG writing (dlib is single-threaded)
 
 
 PRESETS = {
-    "default": DecodeConf(),
-    "paper": DecodeConf(fps=30.0, max_side=1920),  # 30 fps, as in the paper
-    "fast": DecodeConf(fps=5.0, max_side=768, faces=FaceConf(upsample=0)),
+    "default": DecodeConfig(),  # the pipeline's `fast` preset
+    "paper": DecodeConfig(fps=30.0, max_side=1920),  # 30 fps, as in the paper (pipeline `paper`)
 }
+
+
+def preset(name: str) -> DecodeConfig:
+    """A named sampling preset (`default` 10 fps, `paper` 30 fps)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown decode preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name]
 
 
 @dataclass
@@ -91,7 +110,7 @@ def _resize(img: np.ndarray, max_side: int) -> np.ndarray:
     return cv2.resize(img, (int(round(w * s)) // 2 * 2, int(round(h * s)) // 2 * 2), interpolation=cv2.INTER_AREA)
 
 
-def sample_video(path: Path, conf: DecodeConf, window: Optional[tuple[float, float]]) -> tuple[list[Sample], dict]:
+def sample_video(path: Path, conf: DecodeConfig, window: Optional[tuple[float, float]]) -> tuple[list[Sample], dict]:
     """Decode `path` and keep frames on a `conf.fps` time grid inside the window."""
     info = probe_video(path)
     start, end = (window or (0.0, None))
@@ -113,7 +132,7 @@ def sample_video(path: Path, conf: DecodeConf, window: Optional[tuple[float, flo
     return samples, facts
 
 
-def sample_images(files: list[Path], conf: DecodeConf) -> tuple[list[Sample], dict]:
+def sample_images(files: list[Path], conf: DecodeConfig) -> tuple[list[Sample], dict]:
     """Read an ordered image folder (every image is a sample; timestamps index / image_fps)."""
     samples, size = [], None
     for i, p in enumerate(files):
@@ -144,7 +163,7 @@ def median_flow(a: np.ndarray, b: np.ndarray, dis: "cv2.DISOpticalFlow") -> floa
     return float(np.median(np.linalg.norm(flow, axis=2)))
 
 
-def filter_samples(samples: list[Sample], conf: DecodeConf) -> dict:
+def filter_samples(samples: list[Sample], conf: DecodeConfig) -> dict:
     """Score every sample and set `reason` for dropped ones; raise on unusable clips."""
     n = len(samples)
     if n < conf.min_frames:
@@ -175,7 +194,7 @@ def filter_samples(samples: list[Sample], conf: DecodeConf) -> dict:
     return counts
 
 
-def _mark_duplicates(sharp: list[Sample], conf: DecodeConf) -> None:
+def _mark_duplicates(sharp: list[Sample], conf: DecodeConfig) -> None:
     """Drop frames whose median flow to the last kept frame is below `dup_flow_px`."""
     if not sharp:
         return
@@ -216,7 +235,7 @@ def _frames_table(samples: list[Sample], faces: dict[int, int]) -> pa.Table:
 _WORKER: dict = {}
 
 
-def _init_worker(face_conf: FaceConf, quality: int) -> None:
+def _init_worker(face_conf: FaceConfig, quality: int) -> None:
     _WORKER["blur"], _WORKER["quality"] = FaceBlurrer(face_conf), quality
 
 
@@ -229,9 +248,9 @@ def _blur_and_write(job: tuple[np.ndarray, str]) -> int:
     return len(boxes)
 
 
-def _write(samples: list[Sample], conf: DecodeConf, out_dir: Path) -> dict[int, int]:
+def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int, int]:
     """Blur faces in memory and write kept frames (in `conf.workers` processes); faces per sample."""
-    images = out_dir / "images"
+    images = out_dir / OUTPUTS.images
     images.mkdir()
     kept = [i for i, s in enumerate(samples) if s.reason is None]
     jobs = [(samples[i].image, str(images / f"{k:06d}.jpg")) for k, i in enumerate(kept)]
@@ -245,13 +264,13 @@ def _write(samples: list[Sample], conf: DecodeConf, out_dir: Path) -> dict[int, 
     return dict(zip(kept, counts))
 
 
-def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
+def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
          window: Optional[tuple[float, float]] = None) -> Path:
     """Decode, filter, anonymise and write one clip; skip when done with the same key."""
     out_dir = Path(out_dir)
     src = source if isinstance(source, Source) else resolve_source(source)
     window = None if window is None else (float(window[0]), float(window[1]))
-    key = stage_key(STAGE, replace(conf, workers=1), src.sha256, list(window) if window else None)
+    key = stage_key(STAGE, STAGE_VERSION, replace(conf, workers=1), src.sha256, list(window) if window else None)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:
@@ -263,7 +282,7 @@ def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
         counts = filter_samples(samples, conf)
         fresh_dir(out_dir)
         faces = _write(samples, conf, out_dir)
-        pq.write_table(_frames_table(samples, faces), out_dir / "frames.parquet")
+        pq.write_table(_frames_table(samples, faces), out_dir / OUTPUTS.frames)
         kept = [s for s in samples if s.reason is None]
         h, w = kept[0].image.shape[:2]
         counts["faces_blurred"] = int(sum(faces.values()))
@@ -271,7 +290,7 @@ def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
         clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
                 "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
                 **facts, "counts": counts, "face_detector": blurrer.name, "config": to_jsonable(conf)}
-        (out_dir / "clip.json").write_text(json.dumps(to_jsonable(clip), indent=2))
+        (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
     summary = {k: counts[k] for k in ("sampled", "kept", "dropped_black", "dropped_blur", "dropped_duplicate",
                                       "faces_blurred")}
     mark_done(out_dir, STAGE, key, {**summary, "size": [w, h]}, timer.seconds)
@@ -280,4 +299,4 @@ def main(conf: DecodeConf, source: Union[Source, str, Path], out_dir: Path,
 
 def kept_images(out_dir: Path) -> list[Path]:
     """The written frames of a finished decode output, in order."""
-    return sorted((Path(out_dir) / "images").glob("*.jpg"))
+    return sorted((Path(out_dir) / OUTPUTS.images).glob("*.jpg"))

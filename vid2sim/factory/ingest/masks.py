@@ -38,13 +38,26 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vid2sim.factory.ingest.decode import kept_images
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "masks"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+@dataclass(frozen=True)
+class MasksOutputs:
+    """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
+
+    masks: str = "masks"  # <image>.png, 0 = dynamic (COLMAP)
+    table: str = "masks.parquet"
+
+
+OUTPUTS = MasksOutputs()
+
 
 
 @dataclass(frozen=True)
-class MasksConf:
+class MasksConfig:
     analysis_width: int = 424  # flow resolution (px); masks are upsampled to the image size
     residual_px: float = 1.0  # epipolar / transfer error (analysis px) that counts as motion
     residual_rel: float = 4.0  # ... and at least this multiple of the frame's median error
@@ -58,13 +71,6 @@ class MasksConf:
     segmenter_path: Optional[str] = None  # TorchScript learned segmenter (local file)
     segmenter_classes: tuple[int, ...] = (1,)  # output classes that are people / vehicles
     segment_min_motion: float = 0.1  # a segment is masked when this fraction of it moves
-
-
-PRESETS = {
-    "default": MasksConf(),
-    "strict": MasksConf(residual_px=0.7, residual_rel=3.0, dilate_px=11),  # mask more
-    "lenient": MasksConf(residual_px=1.5, residual_rel=6.0, dilate_px=5),  # mask less
-}
 
 
 class Segmenter(Protocol):
@@ -152,7 +158,7 @@ def transfer(H: np.ndarray, x: np.ndarray, y: np.ndarray, u: np.ndarray, v: np.n
     return np.hypot(p / r - u, q / r - v)
 
 
-def pair_residual(flow: np.ndarray, reliable: np.ndarray, conf: MasksConf) -> tuple[np.ndarray, str]:
+def pair_residual(flow: np.ndarray, reliable: np.ndarray, conf: MasksConfig) -> tuple[np.ndarray, str]:
     """Per-pixel disagreement [h, w] of `flow` with the dominant camera geometry, and the model."""
     h, w = flow.shape[:2]
     x, y = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))  # [h, w]
@@ -172,11 +178,11 @@ def pair_residual(flow: np.ndarray, reliable: np.ndarray, conf: MasksConf) -> tu
     return sampson(F, x, y, u, v), "F"
 
 
-def _texture(grey: np.ndarray, conf: MasksConf) -> np.ndarray:
+def _texture(grey: np.ndarray, conf: MasksConfig) -> np.ndarray:
     return cv2.cornerMinEigenVal(grey.astype(np.float32) / 255.0, 5, 3) > conf.min_texture
 
 
-def motion_evidence(greys: list[np.ndarray], conf: MasksConf) -> tuple[list[np.ndarray], list[dict], list[str]]:
+def motion_evidence(greys: list[np.ndarray], conf: MasksConfig) -> tuple[list[np.ndarray], list[dict], list[str]]:
     """Per frame: evidence in [0, 1] [h, w] (fraction of neighbour pairs that flag a pixel),
     flows to the neighbours {-1: flow, +1: flow} and the geometry model used."""
     dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
@@ -210,7 +216,7 @@ def temporal_majority(evidence: list[np.ndarray], flows: list[dict]) -> list[np.
     return out
 
 
-def clean(mask: np.ndarray, conf: MasksConf) -> np.ndarray:
+def clean(mask: np.ndarray, conf: MasksConfig) -> np.ndarray:
     """Opening + removal of blobs smaller than `min_area` (bool [h, w])."""
     m = cv2.morphologyEx(mask.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
@@ -243,7 +249,7 @@ def moving_boxes(boxes: np.ndarray, moving: np.ndarray, min_motion: float) -> np
     return out
 
 
-def _people_detector(conf: MasksConf) -> Optional[HogPeople]:
+def _people_detector(conf: MasksConfig) -> Optional[HogPeople]:
     if conf.people == "off" or (conf.people == "auto" and not hog_available()):
         return None
     if not hog_available():
@@ -252,7 +258,7 @@ def _people_detector(conf: MasksConf) -> Optional[HogPeople]:
 
 
 # --------------------------------------------------------------------------- stage
-def compute_masks(images: list[np.ndarray], conf: MasksConf, segmenter: Optional[Segmenter] = None,
+def compute_masks(images: list[np.ndarray], conf: MasksConfig, segmenter: Optional[Segmenter] = None,
                   ) -> tuple[list[np.ndarray], list[dict]]:
     """BGR images -> dynamic masks (bool [H, W], True = dynamic) and per-frame facts."""
     H, W = images[0].shape[:2]
@@ -286,21 +292,21 @@ def compute_masks(images: list[np.ndarray], conf: MasksConf, segmenter: Optional
     return masks, facts
 
 
-def load_segmenter(conf: MasksConf) -> Optional[Segmenter]:
+def load_segmenter(conf: MasksConfig) -> Optional[Segmenter]:
     return TorchScriptSegmenter(conf.segmenter_path, conf.segmenter_classes) if conf.segmenter_path else None
 
 
-def main(conf: MasksConf, decode_dir: Path, out_dir: Path, segmenter: Optional[Segmenter] = None) -> Path:
+def main(conf: MasksConfig, decode_dir: Path, out_dir: Path, segmenter: Optional[Segmenter] = None) -> Path:
     """Write `masks/<image>.png` for every frame of a finished decode output."""
     decode_dir, out_dir = Path(decode_dir), Path(out_dir)
     rec = load_record(decode_dir)
     if rec is None:
         raise StageError(STAGE, "missing_input", f"{decode_dir}: no finished decode output (stage.json)")
-    files = sorted((decode_dir / "images").glob("*.jpg"))
+    files = kept_images(decode_dir)
     if len(files) < 2:
         raise StageError(STAGE, "too_few_frames", f"{decode_dir}: {len(files)} images")
     seg_id = conf.segmenter_path or (type(segmenter).__name__ if segmenter is not None else None)
-    key = stage_key(STAGE, conf, rec.key, seg_id)
+    key = stage_key(STAGE, STAGE_VERSION, conf, rec.key, seg_id)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:
@@ -308,9 +314,9 @@ def main(conf: MasksConf, decode_dir: Path, out_dir: Path, segmenter: Optional[S
         images = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in files]
         masks, facts = compute_masks(images, conf, segmenter)
         fresh_dir(out_dir)
-        (out_dir / "masks").mkdir()
+        (out_dir / OUTPUTS.masks).mkdir()
         for p, m in zip(files, masks):
-            cv2.imwrite(str(out_dir / "masks" / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
+            cv2.imwrite(str(out_dir / OUTPUTS.masks / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
         table = pa.Table.from_pylist([{"image": p.name, **f} for p, f in zip(files, facts)])
         pq.write_table(table, out_dir / "masks.parquet")
     frac = np.array([f["dynamic_fraction"] for f in facts])

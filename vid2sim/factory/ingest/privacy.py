@@ -28,7 +28,7 @@ from vid2sim.factory.runtime.stage_cache import StageError
 
 
 @dataclass(frozen=True)
-class FaceConf:
+class FaceConfig:
     detector: str = "dlib_hog"  # dlib_hog | cascade | yunet | none
     model_path: Optional[str] = None  # cascade XML or YuNet .onnx (local file)
     upsample: int = 1  # dlib: image pyramid up-sampling (1 finds faces >= ~40 px)
@@ -47,7 +47,7 @@ class FaceDetector(Protocol):
 class DlibHogFaces:
     name = "dlib_hog"
 
-    def __init__(self, conf: FaceConf) -> None:
+    def __init__(self, conf: FaceConfig) -> None:
         try:
             import dlib
         except ImportError as e:
@@ -63,7 +63,7 @@ class DlibHogFaces:
 class CascadeFaces:
     name = "cascade"
 
-    def __init__(self, conf: FaceConf) -> None:
+    def __init__(self, conf: FaceConfig) -> None:
         if not hasattr(cv2, "CascadeClassifier"):
             raise StageError("privacy", "no_face_detector",
                              f"OpenCV {cv2.__version__} has no CascadeClassifier (moved out of OpenCV 5 main)")
@@ -82,7 +82,7 @@ class CascadeFaces:
 class YuNetFaces:
     name = "yunet"
 
-    def __init__(self, conf: FaceConf) -> None:
+    def __init__(self, conf: FaceConfig) -> None:
         if not conf.model_path or not Path(conf.model_path).is_file():
             raise StageError("privacy", "no_face_detector", f"yunet needs a local .onnx model_path, got {conf.model_path!r}")
         thr = conf.score_threshold or 0.6
@@ -101,7 +101,7 @@ class YuNetFaces:
 DETECTORS = {"dlib_hog": DlibHogFaces, "cascade": CascadeFaces, "yunet": YuNetFaces}
 
 
-def make_detector(conf: FaceConf) -> Optional[FaceDetector]:
+def make_detector(conf: FaceConfig) -> Optional[FaceDetector]:
     """The configured detector, or None for the explicit "none" opt-out."""
     if conf.detector == "none":
         return None
@@ -131,7 +131,7 @@ def blur_boxes(bgr: np.ndarray, boxes: np.ndarray, pad: float = 0.3) -> np.ndarr
 class FaceBlurrer:
     """Detect + blur; call on every frame before it is written."""
 
-    def __init__(self, conf: FaceConf = FaceConf()) -> None:
+    def __init__(self, conf: FaceConfig = FaceConfig()) -> None:
         self.conf, self.detector = conf, make_detector(conf)
         self.name = "none" if self.detector is None else self.detector.name
 

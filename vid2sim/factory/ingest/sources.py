@@ -76,13 +76,32 @@ def is_uri(spec: str) -> bool:
     return bool(_URI_RE.match(str(spec)))
 
 
+SECRET_PARAMS = re.compile(r"(?i)^(x-amz-.*|x-goog-.*|signature|sig|se|sp|sv|sr|skoid|sktid|skt|ske|sks|skv|"
+                           r"awsaccesskeyid|expires|policy|key-pair-id|token|access_token|auth|key|apikey|"
+                           r"api_key|password|pass|secret|credential|session_token)$")
+
+
+def redact_uri(uri: str) -> str:
+    """`uri` without user info and signed / secret query parameters (what may be stored or printed)."""
+    from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
+
+    if not is_uri(uri):
+        return uri
+    parts = urlsplit(uri)
+    host = parts.hostname or ""
+    netloc = host + (f":{parts.port}" if parts.port else "")
+    query = urlencode([(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True)
+                       if not SECRET_PARAMS.match(k)])
+    return urlunsplit((parts.scheme, netloc, parts.path, query, parts.fragment))
+
+
 def resolve_source(spec: Union[str, Path], cache_dir: Optional[Path] = None,
                    expected_sha256: Optional[str] = None) -> Source:
     """Path or URI -> local `Source` (downloading a URI once into the cache)."""
     spec_s = str(spec)
     if is_uri(spec_s) and not spec_s.startswith("file://"):
         path = fetch_uri(spec_s, cache_dir or default_cache_dir(), expected_sha256)
-        return _local_source(path, spec_s, expected_sha256)
+        return _local_source(path, redact_uri(spec_s), expected_sha256)
     if spec_s.startswith("file://"):
         spec_s = spec_s[len("file://"):]
     return _local_source(Path(spec_s), str(spec), expected_sha256)
@@ -121,12 +140,13 @@ def fetch_uri(uri: str, cache_dir: Path, expected_sha256: Optional[str] = None) 
             _copy_uri(uri, out)
         digest = sha256_file(Path(tmp))
         if expected_sha256 and digest != expected_sha256.lower():
-            raise StageError(STAGE, "sha256_mismatch", f"{uri}: sha256 {digest} != expected {expected_sha256}")
+            raise StageError(STAGE, "sha256_mismatch",
+                             f"{redact_uri(uri)}: sha256 {digest} != expected {expected_sha256}")
         os.replace(tmp, target)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-    meta.write_text(json.dumps({"uri": uri, "sha256": digest, "file": name}, indent=2))
+    meta.write_text(json.dumps({"uri": redact_uri(uri), "sha256": digest, "file": name}, indent=2))
     return target
 
 
@@ -157,6 +177,10 @@ def _copy_uri(uri: str, out) -> None:
             while block := f.read(1 << 20):
                 out.write(block)
     except ImportError as e:  # e.g. s3fs / gcsfs not installed
-        raise StageError(STAGE, "unsupported_uri", f"{uri}: {e}") from e
+        raise StageError(STAGE, "unsupported_uri", f"{redact_uri(uri)}: {e}") from None
+    except FileNotFoundError:
+        raise StageError(STAGE, "unreachable_uri", f"{redact_uri(uri)}: nothing found at that address "
+                                                   "(HTTP 404 or no such object)") from None
     except Exception as e:  # noqa: BLE001 - network/filesystem errors of any backend
-        raise StageError(STAGE, "unreachable_uri", f"{uri}: {type(e).__name__}: {e}") from e
+        detail = str(e).replace(uri, redact_uri(uri)).splitlines()[0][:200] if str(e) else ""
+        raise StageError(STAGE, "unreachable_uri", f"{redact_uri(uri)}: {type(e).__name__} {detail}") from None

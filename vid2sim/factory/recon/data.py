@@ -16,7 +16,8 @@ import numpy as np
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
 from vid2sim.factory.runtime.stage_cache import StageError
 
-STAGE = "reconstruct"
+STAGE = "recon"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass

@@ -12,6 +12,8 @@ from typing import Any
 
 import torch
 
+from vid2sim.splats.model import GaussianModel
+
 NAMES = ("means", "quats", "log_scales", "opacity_logits", "sh0", "shN")
 
 
@@ -32,15 +34,11 @@ class SplatParams:
 
     def model(self) -> Any:
         """A GaussianModel view of the current leaves (gradients flow into them)."""
-        from vid2sim.splats.model import GaussianModel
-
         return GaussianModel(means=self.p["means"], quats=self.p["quats"], log_scales=self.p["log_scales"],
                              opacity_logits=self.p["opacity_logits"],
                              sh=torch.cat([self.p["sh0"], self.p["shN"]], dim=1))
 
     def detached_model(self) -> Any:
-        from vid2sim.splats.model import GaussianModel
-
         with torch.no_grad():
             return GaussianModel(means=self.p["means"].detach().clone(), quats=self.p["quats"].detach().clone(),
                                  log_scales=self.p["log_scales"].detach().clone(),

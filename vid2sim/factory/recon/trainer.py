@@ -1,4 +1,4 @@
-"""Stage `reconstruct`: geometry-consistent Gaussian-splat training of one PosedClip.
+"""Stage `recon`: geometry-consistent Gaussian-splat training of one PosedClip.
 
 main(conf, posed_clip_dir, out_dir) -> out_dir
 Reads:  a PosedClip folder (cameras.parquet, points.npz, frame.json, images, masks).
@@ -23,12 +23,12 @@ import torch
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import losses as L
 from vid2sim.factory.recon.config import ReconConfig
-from vid2sim.factory.recon.data import STAGE, View, load_views, scene_extent
+from vid2sim.factory.recon.data import STAGE, STAGE_VERSION, View, load_views, scene_extent
 from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune_only, reset_opacity
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
 from vid2sim.factory.recon.params import SplatParams
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, input_key, is_done, mark_done, stage_key
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply
@@ -40,18 +40,6 @@ CHECKPOINT = "checkpoint.pt"
 
 
 # ----------------------------------------------------------------------------- inputs
-
-def clip_key(posed_clip_dir: Path) -> str:
-    """Content key of a PosedClip folder (its table, points and frame facts)."""
-    d = Path(posed_clip_dir)
-    parts = []
-    for name in ("cameras.parquet", "points.npz", "frame.json"):
-        p = d / name
-        if not p.is_file():
-            raise StageError(STAGE, "bad_posed_clip", f"{d} lacks {name}")
-        parts.append(config_hash(p.read_bytes().hex()))
-    return config_hash(*parts)
-
 
 @dataclass
 class PriorTensors:
@@ -245,7 +233,7 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
     `.npy` metres); defaults to the clip's frame_info["gt_depth_dir"] when present.
     """
     posed_clip_dir, out_dir = Path(posed_clip_dir), Path(out_dir)
-    key = stage_key(STAGE, conf, clip_key(posed_clip_dir))
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(posed_clip_dir))
     if is_done(out_dir, key):
         return out_dir
     if load_checkpoint(out_dir / CHECKPOINT, key) is None:

@@ -1,7 +1,8 @@
 """The `bundle` stage: gather a clip's stage outputs into a validated scene bundle.
 
 Reads: metric/ (PosedClip: cameras, frame facts), recon/ (splats.ply, metrics.json),
-meshing/ (collision.ply, visual_mesh.ply), walkable/ (walkable.npz), sfm/ (quality.json).
+meshing/ (collision.ply, visual_mesh.ply), walkable/ (walkable.npz, corridor.json), sfm/
+(quality.json).
 Writes: a bundle folder (scene.json, splats.ply, collision.ply, walkable.npz,
 cameras.parquet, preview.png, extras: visual_mesh.ply, colmap/) via `write_bundle`.
 """
@@ -18,15 +19,22 @@ import cv2
 import numpy as np
 import torch
 
+from vid2sim.factory.geometry.meshing import OUTPUTS as MESHING
+from vid2sim.factory.geometry.walkable import OUTPUTS as WALKABLE
 from vid2sim.factory.sfm.posed import PosedClip
-from vid2sim.factory.runtime.stage_cache import Timer, is_done, load_record, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import Timer, input_key, is_done, mark_done, stage_key
 from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.formats.bundle import write_bundle
 from vid2sim.formats.errors import BundleError
 from vid2sim.formats.scene import make_scene_json
-from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
+from vid2sim.formats.walkable import load_walkable
+from vid2sim.splats.camera import Camera
+from vid2sim.splats.ply import read_ply
+from vid2sim.splats.render import render
+from vid2sim.splats.types import RasterSettings
 
 STAGE = "bundle"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 def tag(key: str, value: object) -> str:
@@ -52,11 +60,6 @@ def _scalars(d: dict, prefix: str = "") -> dict:
 def render_preview(splats_ply: Path, clip: PosedClip, walkable: np.ndarray, out_png: Path,
                    width: int = 480) -> Path:
     """Preview: the splats rendered from the middle training frame, beside the walkable map."""
-    from vid2sim.splats.camera import Camera
-    from vid2sim.splats.ply import read_ply
-    from vid2sim.splats.render import render
-    from vid2sim.splats.types import RasterSettings
-
     model = read_ply(splats_ply)
     train = clip.split("train") or clip.frames
     frame = train[len(train) // 2]
@@ -89,18 +92,20 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
     dirs = {k: Path(ctx[f"{k}_dir"]) for k in ("recon", "meshing", "walkable")}
     sfm_dir = Path(ctx["sfm_dir"]) if ctx.get("sfm_dir") else None  # absent for posed inputs
     posed_dir = Path(ctx["posed_dir"])
-    inputs = [rec.key if (rec := load_record(d)) else str(d) for d in (posed_dir, *dirs.values())]
-    key = stage_key(STAGE, job.scene_id, job.licence, job.spec.tags, *inputs)
+    inputs = [input_key(d) for d in (posed_dir, *dirs.values())]
+    key = stage_key(STAGE, STAGE_VERSION, {"scene_id": job.scene_id, "licence": job.licence, "tags": job.spec.tags},
+                    *inputs)
     bundle_dir = Path(out_dir) / "scene"
     if is_done(out_dir, key):
         return bundle_dir
     with Timer() as t:
         clip = PosedClip.load(posed_dir)
-        walk = load_walkable(dirs["walkable"] / WALKABLE_NPZ)
+        walk = load_walkable(dirs["walkable"] / WALKABLE.grid)
         metrics = {"recon": _read_json(dirs["recon"] / "metrics.json"),
                    "sfm": _read_json(sfm_dir / "quality.json") if sfm_dir else {},
-                   "meshing": _read_json(dirs["meshing"] / "meshing.json").get("summary", {}),
-                   "walkable": _read_json(dirs["walkable"] / "walkable.json").get("summary", {})}
+                   "meshing": _read_json(dirs["meshing"] / MESHING.summary).get("summary", {}),
+                   "walkable": _read_json(dirs["walkable"] / WALKABLE.summary).get("summary", {}),
+                   "corridor": _read_json(dirs["walkable"] / "corridor.json")}
         spec = job.spec
         start, end = spec.window if spec.window else (0.0, float(max(f.timestamp for f in clip.frames)))
         scene = make_scene_json(
@@ -111,12 +116,12 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
             tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
         with tempfile.TemporaryDirectory() as tmp:
             preview = render_preview(dirs["recon"] / "splats.ply", clip, walk.grid, Path(tmp) / "p.png")
-            extras = {"visual_mesh.ply": dirs["meshing"] / "visual_mesh.ply"}
+            extras = {"visual_mesh.ply": dirs["meshing"] / MESHING.visual}
             colmap = posed_dir / "sparse"
             if colmap.is_dir():
                 extras["colmap"] = colmap
             write_bundle(bundle_dir, scene_json=scene, splats_ply=dirs["recon"] / "splats.ply",
-                         collision_ply=dirs["meshing"] / "collision.ply",
+                         collision_ply=dirs["meshing"] / MESHING.collision,
                          walkable=walk,
                          cameras=clip.cameras_table(), preview_png=preview, extras=extras,
                          overwrite=True)

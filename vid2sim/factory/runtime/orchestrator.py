@@ -3,7 +3,7 @@
 The driver keeps one state machine per clip: when a clip's stage finishes, its
 next stage is submitted; `ray.wait` multiplexes all clips, so clips advance
 independently and a clip that fails stops alone. Stage outputs are cached by
-the stage itself (see `stage.py`), so a re-run resumes after the last finished
+the stage itself (see `stage_cache.py`), so a re-run resumes after the last finished
 stage. Ray retries a task whose worker died (`max_retries`); a StageError is a
 verdict about the input and is not retried.
 """
@@ -75,7 +75,9 @@ def _run_stage(fn: Callable[[dict], dict], stage_name: str, context: dict) -> di
 
 
 def ensure_ray(address: Optional[str] = None, num_cpus: Optional[int] = None) -> None:
-    """Connect to `address`, or start an embedded local Ray runtime once."""
+    """Connect to `address`, or start an embedded local Ray runtime once (num_cpus >= 1)."""
+    if num_cpus is not None and num_cpus < 1:
+        raise ValueError(f"num_cpus={num_cpus}: the local Ray runtime needs at least 1 CPU")
     if ray.is_initialized():
         return
     if address:

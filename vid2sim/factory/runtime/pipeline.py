@@ -2,7 +2,7 @@
 
 Per clip, in `workdir/<clip_id>/` (a local folder, or an object-store URI: then each stage runs
 in its node's scratch and syncs with the store, see runtime/staging.py):
-  decode/  masks/  sfm/  metric/  recon/  meshing/  walkable/  bundle/
+  decode/  masks/  sfm/  metric/  recon/  meshing/  walkable/  bundle/  (one stage each)
 Each folder is a stage output with its `stage.json` marker (config + input hash), so a
 re-run resumes after the last finished stage. The finished bundle is committed to the
 registry by the driver (`Registry.add` is atomic). A clip that fails reports its stage
@@ -11,43 +11,55 @@ and reason; the others go on.
 
 from __future__ import annotations
 
+import json
 import os
 import re
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Sequence, Union
 
+import numba
 import numpy as np
+import ray
+import torch
+import trimesh
 
-from vid2sim.factory.ingest.clips import ClipsConf, ClipSpec, plan_clips
-from vid2sim.factory.ingest.decode import DecodeConf
-from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest, parse_row
-from vid2sim.factory.ingest.masks import MasksConf
+from vid2sim.factory.geometry import meshing, walkable
 from vid2sim.factory.geometry.meshing import MeshingConfig
-from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
-from vid2sim.factory.recon.config import ReconConfig
-from vid2sim.factory.recon.config import preset as recon_preset
+from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
+from vid2sim.factory.geometry.walkable import WalkableConfig
+from vid2sim.factory.ingest import decode, masks
+from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest, parse_row
+from vid2sim.factory.ingest.clips import ClipsConfig, ClipSpec, plan_clips
+from vid2sim.factory.ingest.decode import DecodeConfig
+from vid2sim.factory.ingest.decode import preset as decode_preset
+from vid2sim.factory.ingest.masks import MasksConfig
+from vid2sim.factory.evaluation.corridor import CorridorConfig, corridor_check, gate_reasons
 from vid2sim.factory.runtime.object_store import is_remote
 from vid2sim.factory.runtime.staging import OnStore, fetch_from_store
-from vid2sim.factory.ingest.sources import resolve_source
-from vid2sim.factory.geometry.splat_views import SplatViewConfig
-from vid2sim.factory.runtime.stage_cache import StageError, load_record
-from vid2sim.factory.geometry.walkable import WalkableConfig
-from vid2sim.versioning import config_hash
+from vid2sim.factory.ingest.sources import redact_uri, resolve_source
+from vid2sim.factory.recon import trainer
+from vid2sim.factory.recon.config import ReconConfig
+from vid2sim.factory.recon.config import preset as recon_preset
+from vid2sim.factory.runtime.bundle_assembly import assemble_bundle
+from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
+from vid2sim.factory.runtime.stage_cache import StageError, input_key
+from vid2sim.factory.sfm import metric, sfm
+from vid2sim.factory.sfm.metric import MetricConfig
+from vid2sim.factory.sfm.posed import PosedClip
+from vid2sim.factory.sfm.sfm import SfMConfig
+from vid2sim.factory.sfm.sfm import preset as sfm_preset
+from vid2sim.formats.walkable import load_walkable
+from vid2sim.registry import Registry
+from vid2sim.splats.ply import read_ply
+from vid2sim.versioning import config_hash, from_jsonable, to_jsonable
 
 MANIFEST_SUFFIXES = {".yaml", ".yml", ".csv", ".parquet"}
 
 
-def _sfm_config(preset: str) -> Any:
-    from vid2sim.factory.sfm.sfm import preset as sfm_preset
-
+def _sfm_config(preset: str) -> SfMConfig:
     return sfm_preset("fast" if preset == "fast" else "accurate")
-
-
-def _metric_config() -> Any:
-    from vid2sim.factory.sfm.metric import MetricConfig
-
-    return MetricConfig()
 
 
 @dataclass
@@ -55,28 +67,45 @@ class PipelineConfig:
     """Every stage's config; saved with each scene (pipeline hash = hash of this)."""
 
     preset: str = "fast"
-    clips: ClipsConf = field(default_factory=ClipsConf)
-    decode: DecodeConf = field(default_factory=DecodeConf)
-    masks: MasksConf = field(default_factory=MasksConf)
-    sfm: Any = None
-    metric: Any = None
+    clips: ClipsConfig = field(default_factory=ClipsConfig)
+    decode: DecodeConfig = field(default_factory=DecodeConfig)
+    masks: MasksConfig = field(default_factory=MasksConfig)
+    sfm: Optional[SfMConfig] = None  # None: from the preset (see resolved)
+    metric: Optional[MetricConfig] = None
     recon: ReconConfig = field(default_factory=lambda: recon_preset("fast"))
     views: SplatViewConfig = field(default_factory=SplatViewConfig)
     meshing: MeshingConfig = field(default_factory=MeshingConfig)
     walkable: WalkableConfig = field(default_factory=WalkableConfig)
+    corridor: CorridorConfig = field(default_factory=CorridorConfig)
 
     def resolved(self) -> "PipelineConfig":
         """Fill the SfM/metric configs from the preset when left unset."""
         return replace(self, sfm=self.sfm or _sfm_config(self.preset),
-                       metric=self.metric or _metric_config())
+                       metric=self.metric or MetricConfig())
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "PipelineConfig":
+        """Rebuild from `to_jsonable(conf)`, e.g. scene.json's pipeline.config."""
+        return from_jsonable(cls, data)
+
+    def save(self, path: Path) -> Path:
+        """Write the config as JSON (the same object scene.json keeps under pipeline.config)."""
+        Path(path).write_text(json.dumps(to_jsonable(self), indent=2))
+        return Path(path)
+
+    @classmethod
+    def load(cls, path: Path) -> "PipelineConfig":
+        """Read a config JSON written by `save` (or copied from a scene.json)."""
+        return cls.from_dict(json.loads(Path(path).read_text()))
 
 
 def preset(name: str) -> PipelineConfig:
-    """Named pipeline presets: `fast` (minutes on 2 CPU cores) and `paper` (30k iterations)."""
+    """Named pipeline presets: `fast` (minutes on 2 CPU cores, 10 fps) and `paper` (30 fps, 30k iterations)."""
     if name not in ("fast", "paper"):
         raise ValueError(f"unknown preset {name!r} (fast | paper)")
     views = SplatViewConfig() if name == "fast" else SplatViewConfig(scale=1.0, every=1)
-    return PipelineConfig(preset=name, recon=recon_preset(name), views=views).resolved()
+    sampling = decode_preset("default" if name == "fast" else "paper")
+    return PipelineConfig(preset=name, decode=sampling, recon=recon_preset(name), views=views).resolved()
 
 
 # ----------------------------------------------------------------------------- clips
@@ -94,11 +123,14 @@ def slug(text: str, limit: int = 40) -> str:
 
 
 def scene_id_for(spec: ClipSpec, stem: str) -> str:
-    """Readable, unique, registry-valid id: <stem>-<sha8>[-<start>s]."""
-    sid = f"{slug(stem)}-{spec.source.sha256[:8]}"
+    """Registry id naming the clip: <stem>-<sha8>[-<start>-<end>s], the window exact to 1 ms.
+
+    Re-ingesting a clip gives the same id (a new version); any other window, another scene.
+    """
+    tail = f"-{spec.source.sha256[:8]}"
     if spec.window is not None:
-        sid += f"-{int(round(spec.window[0])):04d}s"
-    return sid
+        tail += "-" + "-".join(f"{t:.3f}".rstrip("0").rstrip(".") for t in spec.window) + "s"
+    return slug(stem, limit=64 - len(tail)) + tail
 
 
 def rows_from_inputs(inputs: Sequence[str], licence: str = "unknown",
@@ -127,7 +159,7 @@ def plan_jobs(rows: Sequence[ManifestRow], conf: PipelineConfig, cache_dir: Opti
                 resolve_source(row.source, expected_sha256=row.sha256)
             specs = plan_clips(row, source, conf.clips)
         except StageError as e:
-            failed.append(ClipResult(row.source, False, e.stage, e.reason, e.detail, {}, {}))
+            failed.append(ClipResult(redact_uri(row.source), False, e.stage, e.reason, e.detail, {}, {}))
             continue
         stem = Path(row.source.split("?")[0].rstrip("/")).name.rsplit(".", 1)[0]
         jobs.extend(ClipJob(s, scene_id_for(s, stem), row.licence) for s in specs)
@@ -138,18 +170,12 @@ def plan_jobs(rows: Sequence[ManifestRow], conf: PipelineConfig, cache_dir: Opti
 
 def _threads(ctx: dict) -> int:
     """Limit torch/numba threads to the CPUs Ray assigned to this task."""
-    import ray
-
     n = int(ray.get_runtime_context().get_assigned_resources().get("CPU", ctx.get("cpus", 1)) or 1)
     n = max(1, n)
-    import torch
-
     torch.set_num_threads(n)
     try:
-        import numba
-
         numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    except (ImportError, ValueError):
+    except ValueError:
         pass
     os.environ["OMP_NUM_THREADS"] = str(n)
     return n
@@ -160,8 +186,6 @@ def _dir(ctx: dict, stage: str) -> Path:
 
 
 def stage_decode(ctx: dict) -> dict:
-    from vid2sim.factory.ingest import decode
-
     job: ClipJob = ctx["job"]
     conf: PipelineConfig = ctx["conf"]
     workers = _threads(ctx)
@@ -171,64 +195,77 @@ def stage_decode(ctx: dict) -> dict:
 
 
 def stage_masks(ctx: dict) -> dict:
-    from vid2sim.factory.ingest import masks
-
     _threads(ctx)
     out = masks.main(ctx["conf"].masks, Path(ctx["decode_dir"]), _dir(ctx, "masks"))
     return {"masks_dir": str(out)}
 
 
 def stage_sfm(ctx: dict) -> dict:
-    from vid2sim.factory.sfm import sfm
-
     _threads(ctx)
-    out = sfm.main(ctx["conf"].resolved().sfm, Path(ctx["decode_dir"]) / "images", Path(ctx["masks_dir"]) / "masks",
+    out = sfm.main(ctx["conf"].resolved().sfm, Path(ctx["decode_dir"]) / decode.OUTPUTS.images,
+                   Path(ctx["masks_dir"]) / masks.OUTPUTS.masks,
                    _dir(ctx, "sfm"))
     return {"sfm_dir": str(out)}
 
 
 def stage_metric(ctx: dict) -> dict:
-    from vid2sim.factory.sfm import metric
-
     _threads(ctx)
     conf = replace(ctx["conf"].resolved().metric, capture_height_m=ctx["job"].spec.capture_height)
-    out = metric.main(conf, Path(ctx["sfm_dir"]), _dir(ctx, "metric"))
+    out = metric.main(conf, Path(ctx["sfm_dir"]), _dir(ctx, "metric"),
+                      Path(ctx["decode_dir"]) / decode.OUTPUTS.images)
     return {"posed_dir": str(out)}
 
 
 def stage_recon(ctx: dict) -> dict:
-    from vid2sim.factory.recon import trainer
-
     _threads(ctx)
     out = trainer.main(ctx["conf"].recon, Path(ctx["posed_dir"]), _dir(ctx, "recon"))
     return {"recon_dir": str(out)}
 
 
 def stage_meshing(ctx: dict) -> dict:
-    from vid2sim.factory.geometry import meshing, walkable
-    from vid2sim.factory.sfm.posed import PosedClip
-    from vid2sim.factory.geometry.splat_views import render_views
-    from vid2sim.splats.ply import read_ply
-
+    """Splat depth views -> collision + visual mesh and ground points (meshing/)."""
     _threads(ctx)
     conf: PipelineConfig = ctx["conf"]
     recon_dir = Path(ctx["recon_dir"])
     clip = PosedClip.load(Path(ctx["posed_dir"]))
-    recon_key = load_record(recon_dir).key
-    views_key = config_hash(recon_key, conf.views)
+    views_key = config_hash(input_key(recon_dir), conf.views)
     model = read_ply(recon_dir / "splats.ply")
     mesh_dir = meshing.main(conf.meshing, render_views(model, clip, conf.views), _dir(ctx, "meshing"),
                             input_key=views_key)
+    return {"meshing_dir": str(mesh_dir)}
+
+
+def stage_walkable(ctx: dict) -> dict:
+    """Ground points + collision mesh + camera path -> walkable grid (walkable/)."""
+    _threads(ctx)
+    conf: PipelineConfig = ctx["conf"]
+    mesh_dir = Path(ctx["meshing_dir"])
+    clip = PosedClip.load(Path(ctx["posed_dir"]))
     path = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3]
-    walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / "ground_points.npy"),
-                             mesh_dir / "collision.ply", path, _dir(ctx, "walkable"),
-                             input_key=load_record(mesh_dir).key)
-    return {"meshing_dir": str(mesh_dir), "walkable_dir": str(walk_dir)}
+    walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / meshing.OUTPUTS.ground_points),
+                             mesh_dir / meshing.OUTPUTS.collision, path, _dir(ctx, "walkable"),
+                             input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))))
+    check_corridor(conf.corridor, mesh_dir, walk_dir, path)
+    return {"walkable_dir": str(walk_dir)}
+
+
+def check_corridor(conf: CorridorConfig, mesh_dir: Path, walk_dir: Path, path: np.ndarray) -> dict:
+    """Corridor check (vid2sim.factory.evaluation.corridor) written to walk_dir/corridor.json, then the
+    quality gate: raises StageError('walkable', reason) when the walked corridor is blocked."""
+    mesh = trimesh.load(mesh_dir / "collision.ply", force="mesh", process=False)
+    report = corridor_check(load_walkable(walk_dir / "walkable.npz"), mesh, path, conf)
+    reasons = gate_reasons(report, conf)
+    out = {**report.to_dict(), "passed": not reasons, "reasons": ",".join(reasons)}
+    (walk_dir / "corridor.json").write_text(json.dumps(out, indent=2))
+    if reasons:
+        raise StageError("walkable", reasons[0], f"walked corridor check failed ({', '.join(reasons)}): "
+                         f"{report.walkable_fraction:.1%} of the path walkable, "
+                         f"{report.path_components} components, "
+                         f"{report.corridor_area_m2:.3f} m^2 of collision surface in the corridor")
+    return out
 
 
 def stage_bundle(ctx: dict) -> dict:
-    from vid2sim.factory.runtime.bundle_assembly import assemble_bundle
-
     _threads(ctx)
     out = assemble_bundle(ctx, _dir(ctx, "bundle"))
     return {"bundle_dir": str(out)}
@@ -236,7 +273,7 @@ def stage_bundle(ctx: dict) -> dict:
 
 STAGES: list[tuple[str, Callable[[dict], dict]]] = [
     ("decode", stage_decode), ("masks", stage_masks), ("sfm", stage_sfm), ("metric", stage_metric),
-    ("recon", stage_recon), ("meshing", stage_meshing), ("bundle", stage_bundle),
+    ("recon", stage_recon), ("meshing", stage_meshing), ("walkable", stage_walkable), ("bundle", stage_bundle),
 ]
 
 
@@ -290,12 +327,6 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
            on_update: Optional[Callable[[ClipState], None]] = None,
            on_plan: Optional[Callable[[list[str]], None]] = None) -> IngestReport:
     """Run every clip of `inputs` through the pipeline and commit finished scenes."""
-    import time
-
-    import ray
-
-    from vid2sim.registry import Registry
-
     t0 = time.perf_counter()
     conf = (conf or preset("fast")).resolved()
     reg = Registry(registry)

@@ -1,12 +1,19 @@
-"""Stage convention: resumable, cached outputs keyed by config + input hashes.
+"""Stage convention: resumable, cached outputs under ONE cache rule.
 
 A stage writes into its own folder and, when finished, an atomic `stage.json`
 marker holding the stage name, the cache key and a summary. A folder without
 the marker (a stage killed mid-way) is treated as not done and redone.
+
+The cache rule (`stage_key`): key = hash(stage name, STAGE_VERSION, config, input keys).
+Each stage module declares `STAGE_VERSION` and bumps it when its logic changes, so a re-run
+after a fix redoes that stage and, through the input keys, every stage downstream of it.
+An input's key (`input_key`) is the marker key of the stage output holding it, or a
+content hash for a folder or file made outside the pipeline.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import shutil
@@ -40,9 +47,35 @@ class StageRecord:
     code_version: str
 
 
-def stage_key(stage: str, conf: Any, *input_keys: str) -> str:
-    """Cache key of a stage run: its name, config and the keys of its inputs."""
-    return config_hash(stage, conf, list(input_keys))
+def stage_key(stage: str, version: int, conf: Any, *input_keys: Any) -> str:
+    """THE cache rule: key of a stage run = its name, code version, config and input keys."""
+    return config_hash(stage, int(version), conf, list(input_keys))
+
+
+def input_key(path: Path) -> str:
+    """Key of a stage input: the marker key of the stage output at `path` (or of its parent
+    folder, for a sub-folder such as `decode/images`); otherwise a content hash of the files."""
+    path = Path(path)
+    for folder in (path, path.parent):
+        rec = load_record(folder) if folder.is_dir() else None
+        if rec is not None:
+            return rec.key
+    return content_key(path)
+
+
+def content_key(path: Path) -> str:
+    """sha256 over relative names and bytes of every file under `path` (or of the file)."""
+    path = Path(path)
+    if not path.exists():
+        raise StageError("cache", "missing_input", f"{path} does not exist")
+    h = hashlib.sha256()
+    files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+    for p in files:
+        h.update(p.relative_to(path.parent if p == path else path).as_posix().encode() + b"\0")
+        with open(p, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()[:16]
 
 
 def load_record(out_dir: Path) -> Optional[StageRecord]:

@@ -33,6 +33,7 @@ from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "metric"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass
@@ -345,9 +346,9 @@ def apply_sim3(rec: Any, s: float, R: np.ndarray, t: np.ndarray) -> None:
 
 
 def posed_clip(conf: MetricConfig, rec: Any, images: Path, masks: Optional[Path],
-               quality: dict, facts: dict) -> PosedClip:
+               frames_dir: str, facts: dict) -> PosedClip:
     names, c2w = camera_arrays(rec)
-    index, ts, ts_source = timestamps(quality.get("images_dir", ""), names, conf.fallback_fps)
+    index, ts, ts_source = timestamps(frames_dir, names, conf.fallback_fps)
     split = holdout_split(len(names), conf.holdout_every)
     cam = next(iter(rec.cameras.values()))
     K = cam.calibration_matrix()
@@ -361,13 +362,18 @@ def posed_clip(conf: MetricConfig, rec: Any, images: Path, masks: Optional[Path]
     return PosedClip(frames, images, masks, xyz, rgb, info)
 
 
-def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path) -> Path:
-    """Align an SfM output to the metric gravity frame and save a PosedClip in `out_dir`."""
+def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path, frames_dir: Optional[Path] = None) -> Path:
+    """Align an SfM output to the metric gravity frame and save a PosedClip in `out_dir`.
+
+    frames_dir: the SfM input frames (decode's `images/`, with `frames.parquet` beside it) for
+    frame indices and timestamps; the pipeline passes it. Left out (a standalone SfM folder), the
+    folder recorded in the sfm `quality.json` is used.
+    """
     sfm_dir, out_dir = Path(sfm_dir), Path(out_dir)
     rec_in = load_record(sfm_dir)
     if rec_in is None:
         raise StageError(STAGE, "missing_input", f"{sfm_dir} is not a finished sfm output")
-    key = stage_key(STAGE, conf, rec_in.key)
+    key = stage_key(STAGE, STAGE_VERSION, conf, rec_in.key)
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:
@@ -375,7 +381,7 @@ def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path) -> Path:
         s, R, t, facts = align(conf, rec, masks)
         fresh_dir(out_dir)
         apply_sim3(rec, s, R, t)
-        clip = posed_clip(conf, rec, images, masks, quality, facts)
+        clip = posed_clip(conf, rec, images, masks, str(frames_dir or quality.get("images_dir", "")), facts)
         clip.save(out_dir)
         write_colmap(rec, out_dir / "sparse")
         mask_names = {p.name[:-4] for p in masks.glob("*.png")} if masks else None

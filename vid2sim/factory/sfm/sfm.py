@@ -18,7 +18,6 @@ one the presets use quadratic sequential overlap (frames i +- 1, 2, 4, ... 2^k) 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 import shutil
@@ -31,10 +30,11 @@ import numpy as np
 
 from vid2sim.factory.sfm.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
 from vid2sim.factory.sfm.export import write_colmap, write_transforms
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, input_key, is_done, mark_done, stage_key
 from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 
 
@@ -108,22 +108,6 @@ def list_images(images_dir: Path) -> list[str]:
     if not images_dir.is_dir():
         raise StageError(STAGE, "missing_input", f"images folder {images_dir} does not exist")
     return sorted(p.name for p in images_dir.iterdir() if p.suffix.lower() in IMAGE_EXTS)
-
-
-def inputs_key(images_dir: Path, names: list[str], masks_dir: Optional[Path]) -> str:
-    """Cheap content key: the producing stage's cache key when the folder sits in a finished
-    stage folder (stable when the folder is copied to another node), else the names, sizes and
-    mtimes of frames and masks."""
-    h = hashlib.sha256()
-    for folder in [Path(images_dir)] + ([Path(masks_dir)] if masks_dir else []):
-        rec = load_record(folder.parent)
-        if rec is not None:
-            h.update(f"{folder.name}:{rec.key};".encode())
-            continue
-        for p in sorted(folder.iterdir()) if folder.is_dir() else []:
-            st = p.stat()
-            h.update(f"{p.name}:{st.st_size}:{int(st.st_mtime)};".encode())
-    return h.hexdigest()[:16]
 
 
 def colmap_masks(masks_dir: Optional[Path], names: list[str], out_dir: Path) -> Optional[Path]:
@@ -382,7 +366,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     """Run SfM on an ordered frame folder; returns `out_dir` (see module doc for contents)."""
     images_dir, out_dir = Path(images_dir), Path(out_dir)
     names = list_images(images_dir)
-    key = stage_key(STAGE, conf, inputs_key(images_dir, names, masks_dir))
+    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(images_dir), input_key(masks_dir) if masks_dir else None)
     if is_done(out_dir, key):
         return out_dir
     fresh_dir(out_dir)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import hashlib
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -24,6 +24,12 @@ from vid2sim.factory.synthetic.mesh_io import write_mesh_ply
 from vid2sim.factory.synthetic.render import StreetRenderer, SyntheticClip
 from vid2sim.factory.synthetic.street import StreetScene
 from vid2sim.factory.synthetic.textures import albedo, shade
+from vid2sim.factory.synthetic.trajectory import walking_poses
+from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.scene import make_scene_json
+from vid2sim.splats.model import GaussianModel
+from vid2sim.splats.ply import write_ply
+from vid2sim.splats.sh import num_sh_coeffs, rgb_to_sh0
 
 
 @dataclass(frozen=True)
@@ -38,10 +44,6 @@ class GTBundleConfig:
 
 def visible_faces(scene: StreetScene, conf: GTBundleConfig, n_views: int = 24) -> np.ndarray:
     """Mask [F] of faces seen from the walked path (low-res casts, looking forward and back)."""
-    from dataclasses import replace
-
-    from vid2sim.factory.synthetic.trajectory import walking_poses
-
     c = replace(scene.config, width=160, height=90, hfov_deg=100.0)
     r = StreetRenderer(scene, c)
     _, T = walking_poses(replace(c, fps=n_views / c.duration_s))
@@ -95,9 +97,6 @@ def sample_splats(scene: StreetScene, conf: GTBundleConfig) -> dict[str, np.ndar
 
 
 def _gaussian_model(s: dict, conf: GTBundleConfig):
-    from vid2sim.splats.model import GaussianModel
-    from vid2sim.splats.sh import num_sh_coeffs, rgb_to_sh0
-
     t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
     n = len(s["means"])
     sh = torch.zeros(n, num_sh_coeffs(conf.sh_degree), 3)
@@ -114,7 +113,6 @@ def _preview(scene: StreetScene, clip: SyntheticClip, path: Path) -> Path:
     Rx = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
     T[:3, :3] = T[:3, :3] @ Rx
     T[:3, 3] += np.array([-4.0, -0.5, 2.5])
-    from dataclasses import replace
     img = StreetRenderer(scene, replace(scene.config, width=640, height=360)).render(T)["rgb"]
     cv2.imwrite(str(path), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
     return path
@@ -131,10 +129,6 @@ def _sha256(path: Path) -> str:
 def write_ground_truth_bundle(scene: StreetScene, clip: SyntheticClip, out_dir: Path,
                               conf: GTBundleConfig = GTBundleConfig(), overwrite: bool = True) -> Path:
     """Write the GT scene bundle to out_dir (validated by the registry's validate_bundle)."""
-    from vid2sim.formats.bundle import write_bundle
-    from vid2sim.formats.scene import make_scene_json
-    from vid2sim.splats.ply import write_ply
-
     c = scene.config
     splats = sample_splats(scene, conf)
     grid, origin, res = scene.walkable_grid()

@@ -29,12 +29,14 @@ from vid2sim.factory.runtime.stage_cache import StageError, is_done, mark_done, 
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.geometry import face_areas
 from vid2sim.factory.synthetic.mesh_io import write_mesh_ply
+from vid2sim.factory.synthetic.geometry import face_normals
 from vid2sim.factory.synthetic.street import StreetScene
 from vid2sim.factory.synthetic.textures import SKY_HORIZON, albedo, shade, sky
 from vid2sim.factory.synthetic.trajectory import walking_poses
 from vid2sim.versioning import to_jsonable
 
 STAGE = "synthetic_render"
+STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass
@@ -163,7 +165,6 @@ def _posed_clip(conf: StreetConfig, ts: np.ndarray, T: np.ndarray, out_dir: Path
 def sample_surface_points(scene: StreetScene, n: int, seed: int = 0, x_pad: float = 10.0
                           ) -> tuple[np.ndarray, np.ndarray]:
     """Area-weighted points on the mesh near the walked street; xyz [n, 3], rgb [n, 3] uint8 (shaded)."""
-    from vid2sim.factory.synthetic.geometry import face_normals
     c = scene.config
     rng = np.random.default_rng(seed + 101)
     V, F = scene.vertices, scene.triangles
@@ -209,7 +210,7 @@ def _ground_truth(conf: StreetConfig, T: np.ndarray, scene: StreetScene) -> dict
 def render_video(scene: StreetScene, conf: StreetConfig, out_dir: Path) -> SyntheticClip:
     """Render the walk through `scene` into out_dir (skipped when already finished for this config)."""
     out_dir = Path(out_dir)
-    key = stage_key(STAGE, conf)
+    key = stage_key(STAGE, STAGE_VERSION, conf)
     if is_done(out_dir, key):
         return SyntheticClip.load(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,247 @@
+"""Env render benchmark on real factory scenes: what the robot's 128x72 camera costs.
+
+    .venv/bin/python benchmarks/env_render.py [--scenes demo gopro] [--poses 16] [--reps 3]
+    .venv/bin/python benchmarks/env_render.py --scenes synthetic   # proxy, no factory scene
+    .venv/bin/python benchmarks/env_render.py --scenes PATH/TO/BUNDLE   # any scene bundle folder
+
+Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
+street; the shared GoPro MAX sidewalk clip when ../shared/data is there). Cameras: robot
+poses along the walked path snapped to the walkable map, 0.6 m above the ground, heading
+along the path +-25 deg, the env intrinsics (simready.robot_cameras: 90 deg fov, 128x72).
+Prints frames/s on 1 and 2 threads (and frames per CPU-second: per core), the per-phase
+split, splats in view, blended splats per pixel, and PSNR/SSIM against the exact render for
+every approximation. The sim-ready set is measured on 256 other robot views (random walkable
+cells, random headings), never on the benchmark poses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numba
+import numpy as np
+import pyarrow.parquet as pq
+import torch
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from common import hardware_line  # noqa: E402
+from env_scenes import build  # noqa: E402
+from vid2sim.factory.recon.losses import ssim_map  # noqa: E402
+from vid2sim.formats.walkable import WalkableGrid, load_walkable  # noqa: E402
+from vid2sim.splats import RasterSettings, read_ply  # noqa: E402
+from vid2sim.splats.cpu import StaticScene  # noqa: E402
+from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
+from vid2sim.splats.cpu.binning import _sort_and_bin_serial  # noqa: E402
+from vid2sim.splats.cpu.frame import composite_frame, project_serial  # noqa: E402
+from vid2sim.splats.cpu.function import camera_arrays  # noqa: E402
+from vid2sim.splats.cpu.preprocess import NF  # noqa: E402
+from vid2sim.splats.cpu.simready import (SimReadyConfig, robot_cameras, sim_ready)  # noqa: E402
+from vid2sim.splats.cpu.static_kernels import cull_cells  # noqa: E402
+from vid2sim.splats.cpu.synthetic import street_scene  # noqa: E402
+
+W, H = 128, 72
+
+
+def snap(grid: WalkableGrid, xy: np.ndarray) -> np.ndarray:
+    """Nearest walkable cell centre of each point xy [P, 2]."""
+    rows, cols = np.nonzero(grid.grid)
+    cx, cy = grid.cell_center(rows, cols)
+    cells = np.stack([cx, cy], 1)  # [C, 2]
+    d = ((xy[:, None, :] - cells[None]) ** 2).sum(-1)
+    return cells[d.argmin(1)]
+
+
+def path_poses(bundle: Path, grid: WalkableGrid, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """n poses along the walked path (camera centres), snapped to the walkable map."""
+    c2w = np.stack(pq.read_table(bundle / "cameras.parquet").column("cam_to_world").to_numpy(
+        zero_copy_only=False)).reshape(-1, 4, 4)
+    path = c2w[:, :2, 3]  # [F, 2]
+    idx = np.linspace(0, len(path) - 2, n).astype(int)
+    tangent = path[idx + 1] - path[idx]
+    yaw = np.arctan2(tangent[:, 1], tangent[:, 0]) + np.deg2rad(np.resize([0.0, 25.0, -25.0], n))
+    return snap(grid, path[idx]), yaw
+
+
+def random_poses(grid: WalkableGrid, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    rows, cols = np.nonzero(grid.grid)
+    pick = rng.integers(0, len(rows), n)
+    x, y = grid.cell_center(rows[pick], cols[pick])
+    return np.stack([x, y], 1), rng.uniform(-np.pi, np.pi, n)
+
+
+def quality(img: torch.Tensor, ref: torch.Tensor) -> tuple[float, float]:
+    """(PSNR dB, SSIM) of img vs ref, both [H, W, 3]."""
+    a, b = img.clamp(0, 1), ref.clamp(0, 1)
+    mse = float(((a - b) ** 2).mean())
+    p = float("inf") if mse == 0 else 10 * np.log10(1.0 / mse)
+    return p, float(ssim_map(a, b).mean())
+
+
+def timed(fn, reps: int) -> tuple[float, float]:
+    """(wall s, process CPU s) of fn() run reps times, after one warm-up call."""
+    fn()
+    w0, c0 = time.perf_counter(), time.process_time()
+    for _ in range(reps):
+        fn()
+    return time.perf_counter() - w0, time.process_time() - c0
+
+
+def fps_line(label: str, fn, frames: int, reps: int) -> float:
+    """Print frames/s on 1 and 2 threads; returns frames/s per CPU-second on 1 thread."""
+    numba.set_num_threads(1)
+    w1, c1 = timed(fn, reps)
+    numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
+    w2, _ = timed(fn, reps)
+    numba.set_num_threads(1)
+    n = frames * reps
+    print(f"  {label:<48} 1 thread {n / w1:7.1f} fps ({n / c1:7.1f} per CPU-s)   "
+          f"2 threads {n / w2:7.1f} fps")
+    return n / c1
+
+
+def phases(scene: StaticScene, cams: list, st: RasterSettings, cap: int, tile: int,
+           t_stop: float = 0.0) -> dict:
+    """Per-phase CPU ms per frame (serial kernels, process CPU time: robust to other load)
+    and splats in view / blends per covered pixel."""
+    G = max(len(scene.means), 1)
+    sel, fo = np.empty(G, np.int64), np.empty((G, NF), np.float32)
+    box, radii = np.empty((G, 4), np.int32), np.empty(G, np.int32)
+    color = np.empty((H, W, 3), np.float32)
+    alpha, depth, bl = np.empty((H, W), np.float32), np.empty((H, W), np.float32), np.empty((H, W), np.int32)
+    tx = (W + tile - 1) // tile
+    nt = tx * ((H + tile - 1) // tile)
+    t = dict(cull=0.0, project=0.0, sort_bin=0.0, composite=0.0)
+    in_view, blends, covered = 0, 0, 0
+    deg = min(st.active_sh_degree, scene.sh_degree)
+    for cam in cams:
+        view, campos, k = camera_arrays(cam)
+        t0 = time.process_time()
+        n = cull_cells(scene.centers, scene.r_means, scene.rho, scene.cell_start, view, k, W, H,
+                       st.near, st.far, sel)
+        t1 = time.process_time()
+        project_serial(sel, n, scene.means, scene.cov, scene.opacity, scene.cut, scene.normal,
+                       scene.rgb, scene.sh, deg, view, campos, k, W, H, st.near, st.far, -1.0,
+                       fo, box, radii)
+        t2 = time.process_time()
+        off, inst, _, _ = _sort_and_bin_serial(fo, box, n, tile, tx, nt, False)
+        t3 = time.process_time()
+        blends += composite_frame(fo, box, off, inst, W, H, tile, cap, t_stop, color, alpha, depth, bl,
+                                  np.zeros(0, np.float64))
+        t4 = time.process_time()
+        for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2, t4 - t3)):
+            t[key] += dt
+        in_view += int((box[:n, 2] >= box[:n, 0]).sum())
+        covered += int((bl > 0).sum())
+    f = len(cams)
+    out = {k: 1e3 * v / f for k, v in t.items()}
+    out.update(in_view=in_view / f, blends_px=blends / max(covered, 1))
+    return out
+
+
+def print_phases(label: str, p: dict) -> None:
+    print(f"    {label}: cull {p['cull']:.2f} ms, project {p['project']:.2f}, sort/bin "
+          f"{p['sort_bin']:.2f}, composite {p['composite']:.2f}; splats in view "
+          f"{p['in_view']:,.0f}; blended splats per covered pixel {p['blends_px']:.1f}")
+
+
+def load_scene(name: str, args: argparse.Namespace) -> tuple | None:
+    """(model, benchmark cameras, sim-ready cameras, title) of a factory scene, or of the
+    synthetic street proxy ('synthetic': NOT a factory scene, for when none is built)."""
+    if name == "synthetic":
+        model = street_scene(args.synthetic_splats, seed=4)
+        rng = np.random.default_rng(1)
+        xs = np.linspace(-50.0, 50.0, args.poses)
+        cams = robot_cameras(np.stack([xs, np.zeros_like(xs)], 1),
+                             np.deg2rad(np.resize([0.0, 25.0, -25.0], args.poses)))
+        train = robot_cameras(np.stack([rng.uniform(-55, 55, 256), rng.uniform(-2, 2, 256)], 1),
+                              rng.uniform(-np.pi, np.pi, 256))
+        return model, cams, train, f"synthetic street proxy (NOT a factory scene), {model.num:,} splats"
+    bundle = Path(name) if (Path(name) / "scene.json").is_file() else build(name)
+    if bundle is None:
+        return None
+    model = read_ply(bundle / "splats.ply")
+    grid = load_walkable(bundle / "walkable.npz")
+    cams = robot_cameras(*path_poses(bundle, grid, args.poses))
+    train = robot_cameras(*random_poses(grid, 256, seed=1))
+    return model, cams, train, f"{name}: {bundle}, walkable {grid.area_m2():.0f} m^2"
+
+
+def bench_scene(name: str, args: argparse.Namespace) -> None:
+    loaded = load_scene(name, args)
+    if loaded is None:
+        return
+    model, cams, train, title = loaded
+    st = RasterSettings(W, H, active_sh_degree=model.sh_degree)
+    print(f"\n## {title}\n  {model.num:,} splats (SH {model.sh_degree}), {len(cams)} robot "
+          f"poses, 0.6 m, 128x72, 90 deg fov")
+    full = StaticScene(model)
+    exact = [full.render(c, st).rgb for c in cams]
+    fps_line("before: StaticScene.render, exact", lambda: [full.render(c, st) for c in cams],
+             len(cams), args.reps)
+    batch = SceneBatch([full])
+    fps_line("frame kernel, 1 camera per call, exact", lambda: [batch.render([c], settings=st)
+                                                                for c in cams], len(cams), args.reps)
+    before = fps_line("frame kernel, 8 cameras per call, exact",
+                      lambda: [batch.render(cams[i:i + 8], settings=st) for i in range(0, len(cams), 8)],
+                      len(cams), args.reps)
+    phases(full, cams[:1], st, 0, 16)  # compile the serial kernels outside the timing
+    print_phases("exact", phases(full, cams, st, 0, 16))
+    variants = [("full", full)]
+    for mass in args.keep_mass:
+        t0 = time.perf_counter()
+        small, _ = sim_ready(model, train, SimReadyConfig(keep_mass=mass), st)
+        print(f"  sim-ready keep_mass {mass}: {small.num:,} splats "
+              f"({small.num / model.num:.0%}), made in {time.perf_counter() - t0:.1f} s")
+        variants.append((f"sim-ready {mass}", StaticScene(small)))
+    for label, scene in variants:
+        b = SceneBatch([scene])
+        for deg in sorted({0, model.sh_degree}, reverse=True):
+            for ts in args.t_stop:
+                for cap in args.caps:
+                    if label == "full" and (deg, ts, cap) == (model.sh_degree, 0.0, 0):
+                        continue  # the exact render itself
+                    approx_line(f"{label}, SH{deg}, t_stop {ts}, cap {cap or 'off'}", b, cams,
+                                RasterSettings(W, H, active_sh_degree=deg), ts, cap, exact,
+                                before, args.reps)
+        if label != "full":
+            print_phases(label, phases(scene, cams, st, 0, 16))
+
+
+def approx_line(tag: str, b: SceneBatch, cams: list, st: RasterSettings, ts: float, cap: int,
+                exact: list, before: float, reps: int) -> None:
+    """frames/s (8 cameras per call) and PSNR/SSIM vs exact of one approximation."""
+    imgs = b.render(cams, settings=st, blend_cap=cap, t_stop=ts).rgb
+    q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
+    fps = fps_line(tag, lambda: [b.render(cams[i:i + 8], settings=st, blend_cap=cap, t_stop=ts)
+                                 for i in range(0, len(cams), 8)], len(cams), reps)
+    print(f"    PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
+          f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f}; "
+          f"x{fps / before:.2f} per CPU-s vs exact 8/call")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenes", nargs="+", default=["demo", "gopro"])
+    ap.add_argument("--poses", type=int, default=16)
+    ap.add_argument("--reps", type=int, default=3)
+    ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.995])
+    ap.add_argument("--caps", type=int, nargs="+", default=[0])
+    ap.add_argument("--t-stop", type=float, nargs="+", default=[0.0, 0.01])
+    ap.add_argument("--synthetic-splats", type=int, default=75_000)
+    args = ap.parse_args()
+    print(f"# env render benchmark\ncommand: {' '.join([sys.executable] + sys.argv)}")
+    print(f"hardware: {hardware_line()}; numba {numba.__version__}")
+    for name in args.scenes:
+        bench_scene(name, args)
+    print(f"\nload average at end: {hardware_line()}")
+
+
+if __name__ == "__main__":
+    main()

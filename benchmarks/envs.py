@@ -1,0 +1,134 @@
+"""Env benchmark: scripted-expert SR / SPL / Cost and env steps per second split by part.
+
+Scenes: the synthetic street's ground-truth bundle at ~75k and 200k splats (built into a tmp
+registry, any valid bundle works), plus `--registry ROOT --scene ID` (e.g. the factory demo
+scene made by `vid2sim demo`). Expert: evaluation mode (no jitter, no augmentation), 0-5
+obstacles per episode. Speed: one numba thread (one core), the expert driving, resets excluded,
+time split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward.
+
+Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
+       [--registry ROOT --scene ID] [--skip-gt]
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import gymnasium
+import numba
+import numpy as np
+
+from common import hardware_line
+import vid2sim.envs  # noqa: F401  (registers the env ids)
+from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.metrics import summarize
+from vid2sim.envs.nav_env import PARTS
+from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
+from vid2sim.registry import Registry
+
+CHECKOUTS = Path(tempfile.mkdtemp(prefix="vid2sim-bench-checkouts-"))
+SPEED_RUNS = (("PointNav", "rgb"), ("PointNav", "depth"), ("SocialNav", "rgb"))
+
+
+def gt_registry(root: Path, splat_counts: tuple[int, ...]) -> list[tuple[str, str]]:
+    """GT bundles of one synthetic street (10 s walk) at several splat counts -> (root, scene id)."""
+    conf = preset("test", seed=11, duration_s=10.0)
+    scene = generate_street(conf)
+    clip = render_video(scene, conf, root / "clip")
+    reg = Registry(root / "registry")
+    out = []
+    for n in splat_counts:
+        sid = f"gt-street-{n // 1000}k"
+        bundle = write_ground_truth_bundle(scene, clip, root / sid, GTBundleConfig(n_splats=n, scene_id=sid))
+        reg.add(bundle)
+        out.append((reg.root, sid))
+    return out
+
+
+def make(root: str, scene: str, task: str = "PointNav", variant: str = "rgb", **kw) -> gymnasium.Env:
+    return gymnasium.make(f"vid2sim/{task}-v0", registry=root, scenes=scene, variant=variant,
+                          checkout_root=CHECKOUTS, **kw)
+
+
+def expert_table(root: str, scene: str, episodes: int) -> tuple:
+    env = make(root, scene, training=False)
+    expert, records = PurePursuitExpert(), []
+    for seed in range(episodes):
+        env.reset(seed=seed)
+        expert.reset(env)
+        done = False
+        while not done:
+            _, _, term, trunc, info = env.step(expert.act(env))
+            done = term or trunc
+        records.append(info["episode"])
+    env.close()
+    return summarize(records)
+
+
+def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[float, dict]:
+    """Steps/s of the expert driving (training mode: jitter + augmentation on), resets excluded."""
+    env = make(root, scene, task, variant)
+    u, expert = env.unwrapped, PurePursuitExpert()
+    env.reset(seed=100)
+    expert.reset(env)
+    env.step(expert.act(env))  # warm-up (JIT)
+    u.timings.clear()
+    total, done_steps, seed = 0.0, 0, 101
+    while done_steps < steps:
+        t0 = time.perf_counter()
+        _, _, term, trunc, _ = env.step(expert.act(env))
+        total += time.perf_counter() - t0
+        done_steps += 1
+        if term or trunc:
+            env.reset(seed=seed)
+            expert.reset(env)
+            seed += 1
+    parts = {k: 1e3 * u.timings.get(k, 0.0) / done_steps for k in PARTS}
+    parts["other"] = 1e3 * total / done_steps - sum(parts.values())
+    env.close()
+    return done_steps / total, parts
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--episodes", type=int, default=20)
+    ap.add_argument("--steps", type=int, default=200)
+    ap.add_argument("--registry", default=None)
+    ap.add_argument("--scene", default=None)
+    ap.add_argument("--skip-gt", action="store_true")
+    args = ap.parse_args()
+    numba.set_num_threads(1)
+    print(hardware_line())
+    print("command:", " ".join([Path(sys.executable).name] + sys.argv), "| numba threads: 1")
+    scenes: list[tuple[str, str, str]] = []
+    if args.registry and args.scene:
+        n = Registry(args.registry).show(args.scene).num_splats
+        scenes.append((args.registry, args.scene, f"{args.scene} (factory, {n // 1000}k splats)"))
+    if not args.skip_gt:
+        tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-envs-"))
+        for root, sid in gt_registry(tmp, (75_000, 200_000)):
+            scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
+    print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes")
+    print("| scene | SR | SPL | Cost | SNS |\n|---|---|---|---|---|")
+    for root, sid, label in scenes:
+        if "200k" in sid:
+            continue  # same street as the 75k bundle: the expert does not look at the splats
+        s = expert_table(root, sid, args.episodes)
+        print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} |", flush=True)
+    print(f"\nenv steps/s on one core ({args.steps} steps, expert actions, training mode), "
+          "ms per step by part")
+    print("| scene | task / obs | steps/s | " + " | ".join(PARTS) + " | other |")
+    print("|---|---|---|" + "---|" * (len(PARTS) + 1))
+    for root, sid, label in scenes:
+        for task, variant in SPEED_RUNS:
+            sps, parts = speed(root, sid, task, variant, args.steps)
+            cells = " | ".join(f"{parts[k]:.2f}" for k in (*PARTS, "other"))
+            print(f"| {label} | {task} {variant} | {sps:.0f} | {cells} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

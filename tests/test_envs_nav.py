@@ -1,0 +1,174 @@
+"""NavEnv on a real scene: the synthetic street's ground-truth bundle in a tmp registry.
+
+Covers the env checkers (gymnasium + SB3) per task and variant, seeding, bad actions, the
+collision mesh stopping the robot, the map-size refusal and the scripted expert.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import gymnasium
+import numpy as np
+import pytest
+import open3d as o3d
+from gymnasium.utils.env_checker import check_env as gym_check_env
+from stable_baselines3.common.env_checker import check_env as sb3_check_env
+
+import vid2sim.envs  # noqa: F401  (registers the env ids)
+from vid2sim.envs.config import RobotConfig
+from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.nav_env import InvalidActionError, NavEnv
+from vid2sim.envs.physics import PhysicsWorld, RobotState
+from vid2sim.envs.scenes import SceneError, load_scene
+from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
+from vid2sim.registry import Registry
+
+SCENE = "synthetic-street-s11"
+
+
+@pytest.fixture(scope="module")
+def registry(tmp_path_factory):
+    """GT bundle of a 1 s synthetic street (20k splats) + a copy with a tiny walkable map."""
+    root = tmp_path_factory.mktemp("envs")
+    conf = preset("test", seed=11)
+    scene = generate_street(conf)
+    clip = render_video(scene, conf, root / "clip")
+    bundle = write_ground_truth_bundle(scene, clip, root / "bundle", GTBundleConfig(n_splats=20_000))
+    reg = Registry(root / "registry")
+    reg.add(bundle)
+    reg.add(_tiny_copy(bundle, root / "tiny"))
+    return reg, root / "checkouts"
+
+
+def _tiny_copy(bundle, out):
+    shutil.copytree(bundle, out)
+    meta = json.loads((out / "scene.json").read_text())
+    meta["scene_id"] = "tiny-street"
+    (out / "scene.json").write_text(json.dumps(meta))
+    with np.load(out / "walkable.npz") as z:
+        grid, origin, res = z["grid"].copy(), z["origin"], z["resolution"]
+    rows, cols = np.nonzero(grid)
+    keep = np.zeros_like(grid)
+    r0, c0 = rows[len(rows) // 2], cols[len(cols) // 2]
+    keep[r0 - 10:r0 + 10, c0 - 30:c0 + 30] = 1  # 3 m x 1 m of walkable ground
+    np.savez_compressed(out / "walkable.npz", grid=keep, origin=origin, resolution=res)
+    return out
+
+
+def make(registry, task: str = "PointNav", **kw):
+    reg, co = registry
+    return gymnasium.make(f"vid2sim/{task}-v0", registry=reg.root, scenes=SCENE, checkout_root=co, **kw)
+
+
+@pytest.mark.parametrize("variant", ["rgb", "depth", "mesh-rgb"])
+def test_check_env_pointnav(registry, variant):
+    env = make(registry, variant=variant)
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    obs, _ = env.reset(seed=0)
+    chans = 1 if variant == "depth" else 3
+    assert obs["image"].shape == (6, chans, 72, 128) and obs["image"].dtype == np.uint8
+    assert obs["vector"].shape == (6, 2) and obs["image"].std() > 5  # a picture, not a blank
+    env.close()
+
+
+def test_check_env_socialnav_with_actors(registry):
+    env = make(registry, task="SocialNav")
+    gym_check_env(env.unwrapped, skip_render_check=True)
+    sb3_check_env(env.unwrapped, warn=False)
+    env.reset(seed=2)
+    s = env.unwrapped.topdown_state()
+    assert 1 <= len(s["pedestrians"]) <= 4 and len(s["obstacles"]) <= 5
+    before = s["pedestrians"].copy()
+    env.step(np.array([0.0, 0.0], np.float32))
+    moved = np.linalg.norm(env.unwrapped.topdown_state()["pedestrians"] - before, axis=1)
+    assert np.all((moved > 0.1) & (moved < 0.4))  # 1.0-1.6 m/s for 0.2 s
+    env.close()
+
+
+def test_same_seed_same_episode(registry):
+    a, b = make(registry), make(registry)
+    rng = np.random.default_rng(0)
+    acts = rng.uniform(-1, 1, (8, 2)).astype(np.float32)
+    oa, _ = a.reset(seed=7)
+    ob, _ = b.reset(seed=7)
+    for act in acts:
+        for k in oa:
+            np.testing.assert_array_equal(oa[k], ob[k])
+        oa, ra, *_ = a.step(act)
+        ob, rb, *_ = b.step(act)
+        assert ra == rb
+    oc, _ = a.reset(seed=8)
+    assert not np.array_equal(oc["vector"], ob["vector"])  # another seed, another episode
+
+
+def test_bad_actions_named_and_harmless(registry):
+    env, ref = make(registry), make(registry)
+    env.reset(seed=3)
+    ref.reset(seed=3)
+    for bad in ([np.nan, 0.0], [0.5, np.inf], [1.0]):
+        with pytest.raises(InvalidActionError):
+            env.step(np.array(bad, np.float32))
+    o1, r1, *_ = env.step(np.array([5.0, -7.0], np.float32))  # clipped to (1, -1)
+    o2, r2, *_ = ref.step(np.array([1.0, -1.0], np.float32))
+    np.testing.assert_array_equal(o1["image"], o2["image"])
+    assert r1 == r2
+
+
+def test_robot_cannot_drive_through_a_mesh_wall(registry):
+    reg, co = registry
+    assets = load_scene(reg, SCENE, co)
+    world = PhysicsWorld(assets.collision, RobotConfig())
+    rc = o3d.t.geometry.RaycastingScene()
+    rc.add_triangles(o3d.core.Tensor(assets.collision.vertices),
+                     o3d.core.Tensor(assets.collision.faces.astype(np.uint32)))
+    rows, cols = np.nonzero(assets.walkable.grid)
+    x0 = assets.walkable.origin[0] + (cols.mean() + 0.5) * assets.walkable.resolution
+    y0 = assets.walkable.origin[1] + (rows.mean() + 0.5) * assets.walkable.resolution
+    # the nearest wall along +y or -y at box mid-height
+    rays = np.array([[x0, y0, 0.35, 0, 1, 0], [x0, y0, 0.35, 0, -1, 0]], np.float32)
+    t_hit = rc.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # [2], inf = no wall
+    assert np.isfinite(t_hit).any()
+    wall, yaw = float(t_hit.min()), (np.pi / 2, -np.pi / 2)[int(np.argmin(t_hit))]
+    state = RobotState(x0, y0, yaw)
+    blocked = False
+    for _ in range(int((wall + 3.0) / 0.02)):  # 1 m/s at 50 Hz, 3 m past the wall
+        state, hit = world.step(state, 1.0, 0.0, 0.02)
+        blocked |= bool(hit)
+    assert blocked
+    assert abs(state.y - y0) < wall - 0.3 + 0.02  # the box front (0.45 m) stops at the wall
+    world.close()
+
+
+def test_tiny_map_refused_at_construction(registry):
+    reg, co = registry
+    with pytest.raises(SceneError, match="map_too_small"):
+        NavEnv(reg, "tiny-street", checkout_root=co)
+
+
+def test_expert_reaches_goals_and_episode_record(registry):
+    env = make(registry, training=False)
+    expert = PurePursuitExpert()
+    ends = []
+    for seed in range(2):
+        env.reset(seed=seed)
+        expert.reset(env)
+        terminated = truncated = False
+        while not (terminated or truncated):
+            _, r, terminated, truncated, info = env.step(expert.act(env))
+        rec = info["episode"]
+        ends.append(rec.end)
+        assert rec.steps == info["steps"] and rec.path_length > 0
+    assert ends == ["success", "success"]
+
+
+def test_topdown_state_keys(registry):
+    env = make(registry)
+    env.reset(seed=1)
+    env.step(np.array([1.0, 0.0], np.float32))
+    s = env.unwrapped.topdown_state()
+    assert {"grid", "robot_xy", "robot_yaw", "path", "planned_path", "goal", "obstacles",
+            "pedestrians"} <= set(s)
+    assert s["path"].shape == (2, 2) and s["obstacles"].shape[1] == 2

@@ -1,0 +1,89 @@
+"""GridPlanner on hand-made grids: shortest lengths, walls, clearance, snapping, sampling."""
+
+import math
+
+import numpy as np
+import pytest
+
+from vid2sim.envs.planning import GridPlanner, inflate, path_length
+from vid2sim.formats.walkable import WalkableGrid as Grid
+
+
+def open_grid(h: int = 20, w: int = 30, res: float = 0.1, origin=(0.0, 0.0)) -> Grid:
+    return Grid(np.ones((h, w), np.uint8), np.array(origin, float), res)
+
+
+def test_straight_path_length_and_endpoints():
+    p = GridPlanner(open_grid())
+    path = p.plan((0.05, 0.05), (2.95, 0.05))
+    assert path is not None and path.shape[1] == 2
+    np.testing.assert_allclose(path[0], (0.05, 0.05))
+    np.testing.assert_allclose(path[-1], (2.95, 0.05))
+    assert path_length(path) == pytest.approx(2.9, abs=1e-9)
+
+
+def test_diagonal_uses_octile_cost():
+    p = GridPlanner(open_grid(20, 20))
+    path = p.plan((0.05, 0.05), (1.95, 1.95))
+    assert path_length(path) == pytest.approx(19 * 0.1 * math.sqrt(2), abs=1e-9)
+    d = p.distance_field((0.05, 0.05))
+    assert d[19, 19] == pytest.approx(19 * 0.1 * math.sqrt(2))
+
+
+def test_wall_forces_detour_through_gap():
+    g = np.ones((20, 20), np.uint8)
+    g[:, 10] = 0  # wall along x = 1.0 .. 1.1
+    g[18, 10] = 1  # one gap near the top (row 18 -> y in [1.8, 1.9])
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1))
+    path = p.plan((0.55, 0.05), (1.55, 0.05))
+    assert path is not None
+    assert path_length(path) > 3.0  # straight line would be 1.0 m
+    assert np.all([p.is_walkable(x, y) for x, y in path])
+    xs_at_wall = path[(path[:, 0] > 1.0) & (path[:, 0] < 1.1)]
+    assert np.all((xs_at_wall[:, 1] > 1.8) & (xs_at_wall[:, 1] < 1.9))
+
+
+def test_no_path_when_separated_and_no_corner_cutting():
+    g = np.ones((10, 10), np.uint8)
+    g[:, 5] = 0
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1))
+    assert p.plan((0.15, 0.15), (0.85, 0.15)) is None
+    assert np.isinf(p.distance_field((0.15, 0.15))[0, 8])
+    # diagonal touch only: two free cells meeting at a corner are not connected
+    g2 = np.zeros((4, 4), np.uint8)
+    g2[0, 0] = g2[1, 1] = 1
+    p2 = GridPlanner(Grid(g2, np.zeros(2), 1.0), snap=0.0)
+    assert p2.plan((0.5, 0.5), (1.5, 1.5)) is None
+
+
+def test_clearance_inflation_blocks_narrow_gap():
+    g = np.ones((30, 30), np.uint8)
+    g[:, 15] = 0
+    g[10:13, 15] = 1  # 0.3 m gap
+    grid = Grid(g, np.zeros(2), 0.1)
+    assert GridPlanner(grid).plan((0.5, 0.5), (2.5, 0.5)) is not None
+    assert GridPlanner(grid, clearance=0.25, snap=0.0).plan((0.5, 0.5), (2.5, 0.5)) is None
+    free = inflate(np.ones((5, 5), bool), 1.0)  # border counts as blocked
+    assert free.sum() == 9 and not free[0].any()
+
+
+def test_snapping_and_off_grid():
+    g = np.ones((10, 10), np.uint8)
+    g[0, 0] = 0
+    p = GridPlanner(Grid(g, np.array([-1.0, 2.0]), 0.1), snap=0.15)
+    assert not p.is_walkable(-0.95, 2.05) and p.is_walkable(-0.85, 2.05)
+    assert p.plan((-0.95, 2.05), (-0.15, 2.85)) is not None  # snapped one cell
+    assert p.plan((5.0, 5.0), (-0.15, 2.85)) is None  # off the grid
+    assert not p.is_walkable(-1.05, 2.05)
+
+
+def test_sample_free_is_reproducible_and_free():
+    g = np.zeros((10, 10), np.uint8)
+    g[2:5, 3:8] = 1
+    p = GridPlanner(Grid(g, np.zeros(2), 0.5))
+    a = [p.sample_free(np.random.default_rng(3)) for _ in range(2)]
+    assert a[0] == a[1]
+    rng = np.random.default_rng(0)
+    assert all(p.is_free(*p.sample_free(rng)) for _ in range(50))
+    with pytest.raises(ValueError, match="no free cell"):
+        GridPlanner(Grid(np.zeros((3, 3), np.uint8), np.zeros(2), 0.1)).sample_free(rng)

@@ -1,0 +1,85 @@
+"""Evaluation statistics, study count clipping and plot (quick); expert eval and a study end to end (slow)."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import ray
+
+from tests.conftest import PROJECT_ROOT
+from vid2sim.envs.metrics import EpisodeRecord
+from vid2sim.training.config import SACConfig
+from vid2sim.training.evaluate import EvalConfig, bootstrap_ci, evaluate, summarize
+from vid2sim.training.privileged import PRIVILEGED_ID
+from vid2sim.training.rollouts import init_ray
+from vid2sim.training.study import StudyConfig, StudyRow, clip_counts, plot, run_study
+
+
+def rec(success: bool, path: float, hits: int = 0) -> EpisodeRecord:
+    return EpisodeRecord(success=success, shortest_length=10.0, path_length=path, collision_events=hits,
+                         collision_steps=hits, proximity_steps=0, steps=50)
+
+
+def test_summary_by_hand():
+    records = [rec(True, 10.0), rec(True, 20.0, 1), rec(False, 5.0, 2), rec(True, 12.5)]
+    metrics, per_scene = summarize(records, ["a", "a", "b", "b"])
+    assert metrics["sr"].mean == pytest.approx(0.75)
+    assert metrics["spl"].mean == pytest.approx((1.0 + 0.5 + 0.0 + 0.8) / 4)
+    assert metrics["cost"].mean == pytest.approx(0.75)
+    assert per_scene["a"]["spl"] == pytest.approx(0.75) and per_scene["b"]["sr"] == 0.5
+    assert metrics["sr"].low <= 0.75 <= metrics["sr"].high
+
+
+def test_bootstrap_interval_shrinks_with_more_episodes():
+    rng = np.random.default_rng(0)
+    small, large = bootstrap_ci(rng.random(10) < 0.5), bootstrap_ci(rng.random(1000) < 0.5)
+    assert large.high - large.low < small.high - small.low
+    assert bootstrap_ci(np.ones(5)).low == 1.0
+
+
+def test_counts_clipped_with_warning():
+    with pytest.warns(UserWarning, match="clipped to 4"):
+        assert clip_counts([1, 5, 15, 3], 4) == [1, 3, 4]
+
+
+def test_study_plot(tmp_path):
+    rows = [StudyRow(n, s, "", [], sr, sr * 0.8, 0.1, 100, 1.0)
+            for n, s, sr in [(1, 0, 0.2), (1, 1, 0.4), (3, 0, 0.5), (3, 1, 0.7)]]
+    path = plot(rows, tmp_path / "study.png")
+    assert path.stat().st_size > 1000
+
+
+@pytest.fixture(scope="module")
+def street_registry(tmp_path_factory):
+    from benchmarks.street_registry import build
+    return build(tmp_path_factory.mktemp("streets"), [1, 2, 3, 4, 5]).root
+
+
+@pytest.mark.slow
+def test_expert_reaches_goals_on_held_out_scene(street_registry, tmp_path):
+    report = evaluate(EvalConfig(registry=str(street_registry), policy="expert", trials=3, env_id=PRIVILEGED_ID,
+                                 checkout_root=str(tmp_path)))
+    assert report.episodes == 3 and report.metrics["sr"].mean >= 2 / 3
+    out = json.loads(report.to_json())
+    assert set(out["metrics"]) >= {"sr", "spl", "cost", "sns"}
+
+
+@pytest.mark.slow
+def test_study_end_to_end_on_ray(street_registry, tmp_path):
+    path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
+    init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})
+    try:
+        sac = SACConfig(learning_starts=20, batch_size=8, buffer_size=200, net_arch=(16, 16))
+        config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1, 99], seeds=1,
+                             total_steps=40, n_envs=1, trials=1, sac=sac, env_id=PRIVILEGED_ID,
+                             env_module="vid2sim.training.privileged")
+        with pytest.warns(UserWarning, match="clipped"):
+            rows = run_study(config)
+    finally:
+        ray.shutdown()
+    assert sorted(r.count for r in rows) == [1, 4]
+    assert (tmp_path / "study.png").exists()
+    assert json.loads((tmp_path / "study.json").read_text())["counts"] == [1, 4]

@@ -1,0 +1,110 @@
+"""Per-episode actors beside the static scene: corridor obstacles and (SocialNav) pedestrians.
+
+`EpisodeActors.spawn` places 0-5 obstacles on the A* corridor (envs-assets' library), checks
+that a path around them still exists (obstacles that would cut the route are dropped, last
+first), adds the crowd, and keeps the obstacle-aware expert path. `draw_over` composites the
+actors into the camera image by z-buffer against the splat depth.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Optional, Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from vid2sim.envs.compositing import composite
+from vid2sim.envs.obstacles import ObstacleConfig, ObstacleSet, Placement, occupancy, place_on_corridor
+from vid2sim.envs.pedestrians import BODY_RADIUS, Crowd
+from vid2sim.envs.planning import GridPlanner
+
+# m added around obstacle footprints for the expert route (the box's corners reach 0.54 m
+# from its centre while the planner keeps 0.35 m from anything blocked)
+OBSTACLE_MARGIN = 0.25
+from vid2sim.formats.walkable import WalkableGrid
+
+
+class EpisodeActors:
+    """Obstacles and pedestrians of one episode in one physics client."""
+
+    def __init__(self, client_id: int) -> None:
+        self.client_id = client_id
+        self.obstacles: Optional[ObstacleSet] = None
+        self.crowd: Optional[Crowd] = None
+        self.expert_path: Optional[np.ndarray] = None  # [K, 2]
+
+    def spawn(self, grid: WalkableGrid, planner: GridPlanner, path: np.ndarray, rng: np.random.Generator,
+              obstacles: ObstacleConfig, pedestrians: int) -> None:
+        """Place this episode's actors (call `remove` first when re-using the client)."""
+        placements = place_on_corridor(path, rng, obstacles, is_walkable=planner.is_free)
+        start, goal = (float(path[0, 0]), float(path[0, 1])), (float(path[-1, 0]), float(path[-1, 1]))
+        while True:
+            route = self._route(grid, planner.clearance, placements, start, goal)
+            if route is not None or not placements:
+                break
+            placements = placements[:-1]
+        self.expert_path = route if route is not None else path
+        self.obstacles = ObstacleSet(self.client_id, placements)
+        self.crowd = (Crowd(planner, pedestrians, rng, self.client_id, avoid=[start, goal])
+                      if pedestrians > 0 else None)
+
+    @staticmethod
+    def _route(grid: WalkableGrid, clearance: float, placements: Sequence[Placement],
+               start: tuple[float, float], goal: tuple[float, float]) -> Optional[np.ndarray]:
+        """A* path around the static obstacles' footprints, or None when they block the way."""
+        static = [p for p in placements if not p.dynamic]
+        occ = occupancy(static, grid.origin, grid.resolution, grid.grid.shape)  # [H, W] bool
+        if occ.any():  # footprints grown by the margin
+            occ = ndimage.distance_transform_edt(~occ) <= OBSTACLE_MARGIN / grid.resolution
+        blocked = WalkableGrid((grid.grid > 0) & ~occ, grid.origin, grid.resolution)
+        return GridPlanner(blocked, clearance=clearance).plan(start, goal)
+
+    def step(self, dt: float, robot_xy: tuple[float, float]) -> tuple[float, float]:
+        """Advance falling obstacles and walkers by dt; returns their seconds (obstacles, people)."""
+        t0 = time.perf_counter()
+        if self.obstacles is not None:
+            self.obstacles.step(dt, robot_xy)
+        t1 = time.perf_counter()
+        if self.crowd is not None:
+            self.crowd.step(dt)
+        return t1 - t0, time.perf_counter() - t1
+
+    def draw_over(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """Composite obstacles then pedestrians over (rgb, depth); also returns their seconds."""
+        H, W = depth.shape
+        t0 = time.perf_counter()
+        if self.obstacles is not None and self.obstacles.placements:
+            rgb, depth = composite(rgb, depth, *self.obstacles.draw(K, w2c, W, H))
+        t1 = time.perf_counter()
+        if self.crowd is not None:
+            rgb, depth = composite(rgb, depth, *self.crowd.draw(K, w2c, W, H))
+        return rgb, depth, t1 - t0, time.perf_counter() - t1
+
+    def obstacle_xy(self) -> np.ndarray:
+        return self.obstacles.positions if self.obstacles is not None else np.zeros((0, 2))
+
+    def pedestrian_xy(self) -> np.ndarray:
+        return self.crowd.positions if self.crowd is not None else np.zeros((0, 2))
+
+    def near_pedestrian(self, x: float, y: float, yaw: float, half_len: float, half_wid: float,
+                        radius: float) -> bool:
+        """True when a pedestrian's body is within `radius` m of the robot's footprint box."""
+        ped = self.pedestrian_xy()  # [P, 2]
+        if len(ped) == 0:
+            return False
+        d = ped - np.array([x, y])
+        c, s = math.cos(yaw), math.sin(yaw)
+        local = np.abs(np.stack([c * d[:, 0] + s * d[:, 1], -s * d[:, 0] + c * d[:, 1]], 1))  # [P, 2]
+        gap = np.linalg.norm(np.maximum(local - np.array([half_len, half_wid]), 0.0), axis=1)
+        return bool((gap - BODY_RADIUS < radius).any())
+
+    def remove(self) -> None:
+        if self.obstacles is not None:
+            self.obstacles.remove()
+        if self.crowd is not None:
+            self.crowd.remove()
+        self.obstacles = self.crowd = None
+        self.expert_path = None

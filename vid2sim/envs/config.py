@@ -1,0 +1,132 @@
+"""Configuration of the navigation envs: robot, camera, reward, episodes, task.
+
+Constants and where they come from:
+- Bicycle model, 0.8 m wheelbase, 30 deg maximum steering: the paper's appendix (simulation
+  set-up). The official Unity `CocoAgent` multiplies steer by 60 deg and halves the yaw rate;
+  we follow the paper (yaw rate = v / L x tan(delta)).
+- Top speed 1.0 m/s: the official agent's speed = move x 1 m/s with move clamped to [0, 1]
+  (no reverse); a delivery robot's sidewalk speed.
+- Footprint: a 0.9 m x 0.6 m x 0.6 m box (length x width x height), centred on the robot's
+  reference point (rear-axle midpoint + half the wheelbase), 0.05 m above the ground.
+- Camera: at the front of the box, 0.65 m above the ground, looking forward, level. The paper
+  gives no intrinsics, only the 1280x720 sensor; we use Unity's default 60 deg vertical field
+  of view at 1280x720 (fx = fy = 623.5 px), scaled to 128x72 (fx = fy = 62.35, cx = 64, cy = 36).
+- Camera jitter per episode (official Unity code): sinusoidal, position amplitude U(0, 0.02) m
+  per axis, rotation amplitude U(0, 0.3) deg (x5 for roll), frequency U(2, 10) Hz, random phase;
+  on for training, off for evaluation.
+- Physics at 50 Hz, control at 5 Hz (10 physics substeps per action): the paper's appendix.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, Optional, Sequence, Union
+
+from vid2sim.envs.augment import AugmentConfig
+from vid2sim.envs.obstacles import ObstacleConfig
+
+Variant = Literal["rgb", "depth", "mesh-rgb"]
+VARIANTS: tuple[str, ...] = ("rgb", "depth", "mesh-rgb")
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    wheelbase: float = 0.8  # m (paper)
+    max_steer_deg: float = 30.0  # paper (official code: 60)
+    max_speed: float = 1.0  # m/s (official CocoAgent: move x 1 m/s)
+    length: float = 0.9  # m, footprint box
+    width: float = 0.6  # m
+    height: float = 0.6  # m
+    ground_clearance: float = 0.05  # m, box bottom above z = 0
+
+    @property
+    def max_steer(self) -> float:
+        return math.radians(self.max_steer_deg)
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    width: int = 128
+    height: int = 72
+    vfov_deg: float = 60.0  # Unity default camera at 1280x720
+    mount_height: float = 0.65  # m above the ground
+    mount_forward: float = 0.45  # m ahead of the robot centre (the box's front face)
+    near: float = 0.05
+    far: float = 100.0
+    cov_cull_alpha: float = 0.01  # screen-space covariance culling (paper appendix)
+    depth_max: float = 20.0  # m, depth observation saturates here (uint8 = 255)
+    jitter_pos: float = 0.02  # m, max amplitude
+    jitter_rot_deg: float = 0.3  # max amplitude (roll x 5)
+    jitter_freq: tuple[float, float] = (2.0, 10.0)  # Hz
+
+    @property
+    def focal(self) -> float:
+        return 0.5 * self.height / math.tan(math.radians(self.vfov_deg) / 2)
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """The paper's appendix: R = R_term + c1 R_dist + c2 R_steer + c3 R_crash + c4 R_time."""
+
+    success: float = 10.0
+    failure: float = -10.0
+    c_dist: float = 1.0  # x (d_{t-1} - d_t)
+    c_steer: float = 0.05  # x |steer_t - steer_{t-1}| x speed (normalised units)
+    c_crash: float = 1.0  # per control step in collision
+    c_time: float = 0.1  # per control step
+    success_radius: float = 0.5  # m
+    max_collisions: int = 3  # failure when exceeded
+    max_steps: int = 3000  # truncated with the failure reward
+
+
+@dataclass(frozen=True)
+class EpisodeConfig:
+    geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, the paper
+    min_geodesic: float = 5.0  # m, the paper's real-world range; smaller maps are refused
+    # m kept from blocked cells by episodes and the expert (robot half-width 0.3 + tracking
+    # margin), minus what the factory already inflated the map by (its robot_radius_m)
+    clearance: float = 0.45
+    start_yaw_noise_deg: float = 15.0
+    pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
+    proximity_radius: float = 0.2  # m, for the proximity-aware SNS
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything a NavEnv needs besides the scene source."""
+
+    variant: str = "rgb"
+    frame_stack: int = 6
+    physics_hz: int = 50
+    control_hz: int = 5
+    training: bool = True  # camera jitter and augmentation on; False = evaluation
+    jitter: Optional[bool] = None  # None: follows `training`
+    robot: RobotConfig = field(default_factory=RobotConfig)
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)  # 0-5 on the corridor
+    augment: Optional[AugmentConfig] = None  # None: enabled iff training
+    lod: bool = False  # splat octree level of detail (approximate, faster)
+
+    def __post_init__(self) -> None:
+        if self.variant not in VARIANTS:
+            raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
+        if self.physics_hz % self.control_hz:
+            raise ValueError("physics_hz must be a multiple of control_hz")
+
+    @property
+    def substeps(self) -> int:
+        return self.physics_hz // self.control_hz
+
+    @property
+    def use_jitter(self) -> bool:
+        return self.training if self.jitter is None else self.jitter
+
+    @property
+    def augmentation(self) -> AugmentConfig:
+        return self.augment if self.augment is not None else AugmentConfig(enabled=self.training)
+
+
+SceneSource = Union[str, Sequence[str]]

@@ -1,0 +1,58 @@
+"""Scripted expert: follow the episode's A* path with a pure-pursuit controller.
+
+Pure pursuit (Coulter 1992) for the kinematic bicycle: steer = atan(2 L sin(alpha) / l_d),
+alpha the bearing of the look-ahead point on the path, l_d its distance. Speed is reduced
+in sharp turns. The path comes from `NavEnv.expert_path()` (A* on the clearance-inflated map,
+obstacles blocked), so the expert also serves demonstrations.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ExpertConfig:
+    lookahead: float = 1.0  # m
+    min_speed: float = 0.3  # normalised speed in the sharpest turns
+    slow_angle_deg: float = 60.0  # bearing at which the speed reaches min_speed
+
+
+class PurePursuitExpert:
+    def __init__(self, config: ExpertConfig = ExpertConfig()) -> None:
+        self.config = config
+        self.path: Optional[np.ndarray] = None  # [K, 2]
+        self.index = 0
+
+    def reset(self, env) -> None:
+        """Take the path of the episode that env (a NavEnv, possibly wrapped) just reset into."""
+        self.path = np.asarray(env.unwrapped.expert_path(), np.float64)
+        self.index = 0
+
+    def act(self, env) -> np.ndarray:
+        """Action [2] (speed, steering) in [-1, 1] for the current robot pose."""
+        u = env.unwrapped
+        x, y, yaw = u.robot_pose()
+        target = self._target(np.array([x, y]))
+        dx, dy = target[0] - x, target[1] - y
+        alpha = (math.atan2(dy, dx) - yaw + math.pi) % (2 * math.pi) - math.pi
+        ld = max(math.hypot(dx, dy), 1e-3)
+        robot = u.config.robot
+        steer = math.atan2(2.0 * robot.wheelbase * math.sin(alpha), ld)
+        c = self.config
+        slow = min(abs(alpha) / math.radians(c.slow_angle_deg), 1.0)
+        speed = 1.0 - (1.0 - c.min_speed) * slow
+        return np.array([speed, np.clip(steer / robot.max_steer, -1.0, 1.0)], np.float32)
+
+    def _target(self, p: np.ndarray) -> np.ndarray:
+        """Look-ahead point: first path point >= lookahead past the closest one (monotone)."""
+        path = self.path
+        window = path[self.index:self.index + 40]
+        self.index += int(np.argmin(np.linalg.norm(window - p, axis=1)))
+        d = np.linalg.norm(path[self.index:] - p, axis=1)
+        far = np.nonzero(d >= self.config.lookahead)[0]
+        return path[self.index + far[0]] if len(far) else path[-1]

@@ -1,0 +1,72 @@
+"""Navigation metrics per episode and aggregated: SR, SPL, Cost, SNS (+ a proximity-aware SNS).
+
+- SR: fraction of successful episodes (Anderson et al. 2018).
+- SPL (Batra et al. 2020, "ObjectNav revisited", eq. 1): S x l / max(p, l), l = shortest
+  geodesic start-goal length, p = length actually travelled. (The official Vid2Sim evaluation
+  computes "SPL" as collision rate x success, which is not SPL.)
+- Cost: collision events per episode (a contact after a step without one = one event), as the
+  official Vid2Sim evaluation counts hits.
+- SNS: the social navigation score as MetaUrban's released evaluation code computes it
+  (github.com/metadriverse/metaurban; Wu et al., "MetaUrban", ICLR 2025): mean over episodes of
+  1 - (steps in collision) / (episode length).
+- SNS-proximity (documented second figure): as SNS, but a step also counts against the score
+  when the robot is within `proximity_radius` (0.2 m, MetaUrban project page) of a pedestrian;
+  the MetaUrban authors state the paper's SNS was not the released one (metaurban issue 18).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class EpisodeRecord:
+    success: bool
+    shortest_length: float  # m, A* geodesic start -> goal
+    path_length: float  # m actually travelled
+    collision_events: int
+    collision_steps: int  # control steps with a contact
+    proximity_steps: int  # control steps within the proximity radius of a pedestrian (no contact)
+    steps: int
+    end: str = ""
+
+
+def spl(e: EpisodeRecord) -> float:
+    """Batra et al.: S x l / max(p, l)."""
+    if not e.success:
+        return 0.0
+    return e.shortest_length / max(e.path_length, e.shortest_length, 1e-9)
+
+
+def sns(e: EpisodeRecord) -> float:
+    """MetaUrban released SNS term of one episode: 1 - collision steps / steps."""
+    return 1.0 - e.collision_steps / max(e.steps, 1)
+
+
+def sns_proximity(e: EpisodeRecord) -> float:
+    """Proximity-aware variant: collision or near-pedestrian steps count against the score."""
+    return 1.0 - min(e.collision_steps + e.proximity_steps, e.steps) / max(e.steps, 1)
+
+
+@dataclass(frozen=True)
+class Summary:
+    episodes: int
+    sr: float
+    spl: float
+    cost: float
+    sns: float
+    sns_proximity: float
+
+
+def summarize(records: Sequence[EpisodeRecord]) -> Summary:
+    """Means over episodes (NaN for an empty list)."""
+    if not records:
+        nan = float("nan")
+        return Summary(0, nan, nan, nan, nan, nan)
+    m = lambda xs: float(np.mean(list(xs)))  # noqa: E731
+    return Summary(len(records), m(e.success for e in records), m(spl(e) for e in records),
+                   m(e.collision_events for e in records), m(sns(e) for e in records),
+                   m(sns_proximity(e) for e in records))

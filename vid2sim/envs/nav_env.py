@@ -1,0 +1,277 @@
+"""`NavEnv`: PointNav / SocialNav on a registry scene (Gymnasium API).
+
+Env contract
+- `reset(seed=None, options=None) -> (obs, info)`: samples the scene (when several), start,
+  goal (A* geodesic in the scene's range), camera jitter (training only). `options` may hold
+  `scene_id` to force a scene. The same seed gives the same episode, observation for observation.
+- `step(action) -> (obs, reward, terminated, truncated, info)`. action: float [2] in [-1, 1]:
+  a[0] speed (clamped to [0, 1] x max_speed: no reverse, as the official agent), a[1] steering
+  (x 30 deg). Out-of-range values are clipped; NaN or inf raise `InvalidActionError` before
+  anything changes (the episode goes on with the next valid action).
+- obs: Dict `image` uint8 [6, C, 72, 128] (oldest first; C = 3 rgb / mesh-rgb, 1 depth where
+  0..255 = 0..20 m), `vector` float32 [6, 2] (distance to goal in m, heading to goal / pi).
+- terminated: success (<= 0.5 m from the goal), left the walkable map, > 3 collision events.
+  truncated: the 3000-step limit (reward -10 as the paper, reported as truncation).
+- Each episode: 0-5 obstacles on the A* corridor (`EnvConfig.obstacles`); SocialNav adds 1-4
+  pedestrians (`EpisodeConfig.pedestrians`) stepped once per control step. Augmentation and
+  camera jitter are on when `training` (default), off for evaluation (`training=False`).
+- info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
+  also `episode` (a `metrics.EpisodeRecord`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict, deque
+from dataclasses import replace
+from pathlib import Path
+from typing import Any, Optional, Sequence, Union
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from vid2sim.envs.actors import EpisodeActors
+from vid2sim.envs.augment import Augmenter
+from vid2sim.envs.camera import Jitter, intrinsics, world_to_camera
+from vid2sim.envs.config import EnvConfig
+from vid2sim.envs.episodes import Episode, sample_episode
+from vid2sim.envs.metrics import EpisodeRecord
+from vid2sim.envs.physics import RobotState
+from vid2sim.envs.planning import path_length
+from vid2sim.envs.rendering import depth_to_u8
+from vid2sim.envs.reward import RewardTerms, StepOutcome, reward
+from vid2sim.envs.scenes import resolve_scene_ids
+from vid2sim.envs.world import SceneWorld, build_world
+from vid2sim.registry import Registry
+
+TASKS = ("pointnav", "socialnav")
+MAX_LOADED_SCENES = 4
+PARTS = ("render", "physics", "obstacles", "pedestrians", "augment", "reward")
+
+
+class InvalidActionError(ValueError):
+    """An action with NaN or infinite entries, or of the wrong shape."""
+
+
+class NavEnv(gym.Env):
+    metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
+
+    def __init__(self, registry: Union[str, Path, Registry], scenes: Union[str, Sequence[str]],
+                 task: str = "pointnav", config: Optional[EnvConfig] = None,
+                 render_mode: Optional[str] = None, checkout_root: Optional[Union[str, Path]] = None,
+                 **config_overrides: Any) -> None:
+        if task not in TASKS:
+            raise ValueError(f"unknown task {task!r}; known: {', '.join(TASKS)}")
+        self.task = task
+        self.config = _with_overrides(config or EnvConfig(), config_overrides)
+        self.render_mode = render_mode
+        self.registry = registry if isinstance(registry, Registry) else Registry(registry)
+        self.scene_ids = resolve_scene_ids(self.registry, scenes)
+        self.checkout_root = Path(checkout_root) if checkout_root else None
+        self._worlds: dict[str, SceneWorld] = {}
+        self.world = self._world(self.scene_ids[0])  # refuses an unusable first scene now
+        c = self.config
+        chans = 1 if c.variant == "depth" else 3
+        self.observation_space = spaces.Dict({
+            "image": spaces.Box(0, 255, (c.frame_stack, chans, c.camera.height, c.camera.width), np.uint8),
+            "vector": spaces.Box(np.tile(np.array([0.0, -1.0], np.float32), (c.frame_stack, 1)),
+                                 np.tile(np.array([1e4, 1.0], np.float32), (c.frame_stack, 1)),
+                                 dtype=np.float32)})
+        self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
+        self.timings: dict[str, float] = defaultdict(float)
+        self.episode: Optional[Episode] = None
+        self.actors: Optional[EpisodeActors] = None
+        self.augmenter = Augmenter(self.config.augmentation)
+        self.K = intrinsics(self.config.camera)
+
+    # ------------------------------------------------------------------ scenes
+    def _world(self, scene_id: str) -> SceneWorld:
+        if scene_id not in self._worlds:
+            if len(self._worlds) >= MAX_LOADED_SCENES:
+                oldest = next(iter(self._worlds))
+                self._worlds.pop(oldest).close()
+            self._worlds[scene_id] = build_world(self.registry, scene_id, self.config,
+                                                 self.checkout_root)
+        return self._worlds[scene_id]
+
+    # ------------------------------------------------------------------ gym API
+    def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
+        super().reset(seed=seed)
+        rng = self.np_random
+        options = options or {}
+        scene_id = options.get("scene_id") or self.scene_ids[int(rng.integers(len(self.scene_ids)))]
+        if self.actors is not None:
+            self.actors.remove()
+        self.world = self._world(scene_id)
+        c = self.config
+        self.episode = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id)
+        ep = self.episode
+        lo, hi = c.episode.pedestrians
+        peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
+        self.actors = EpisodeActors(self.world.physics.client)
+        self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds)
+        self.shortest = path_length(self.actors.expert_path)
+        self.augmenter.reset(rng)
+        self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
+        self.world.physics.place(self.state.x, self.state.y, self.state.yaw)
+        self.jitter = Jitter.sample(c.camera, rng) if c.use_jitter else Jitter.none()
+        self.t = 0.0
+        self.steps = 0
+        self.prev_steer = 0.0
+        self.prev_collided = False
+        self.collision_events = self.collision_steps = self.proximity_steps = 0
+        self.travelled = 0.0
+        self.trace = [(self.state.x, self.state.y)]
+        frame = self._frame()
+        vec = self._goal_vector()
+        self.frames = deque([frame] * c.frame_stack, maxlen=c.frame_stack)
+        self.vectors = deque([vec] * c.frame_stack, maxlen=c.frame_stack)
+        return self._obs(), self._info(None)
+
+    def step(self, action):
+        if self.episode is None:
+            raise RuntimeError("call reset() before step()")
+        speed_n, steer_n = self._check_action(action)
+        c = self.config
+        prev_dist = self.distance()
+        t_obs, t_ped = self.actors.step(1.0 / c.control_hz, (self.state.x, self.state.y))
+        self.timings["obstacles"] += t_obs
+        self.timings["pedestrians"] += t_ped
+        t0 = time.perf_counter()
+        collided = self._drive(speed_n * c.robot.max_speed, steer_n * c.robot.max_steer)
+        t1 = time.perf_counter()
+        self.timings["physics"] += t1 - t0
+        self.steps += 1
+        self.t += 1.0 / c.control_hz
+        if collided and not self.prev_collided:
+            self.collision_events += 1
+        self.collision_steps += int(collided)
+        self.prev_collided = collided
+        r = c.robot
+        if not collided and self.actors.near_pedestrian(
+                self.state.x, self.state.y, self.state.yaw, r.length / 2, r.width / 2,
+                c.episode.proximity_radius):
+            self.proximity_steps += 1
+        outcome = StepOutcome(prev_dist, self.distance(), abs(steer_n - self.prev_steer), speed_n,
+                              collided, self.collision_events,
+                              self.world.walkable.is_walkable(self.state.x, self.state.y), self.steps)
+        self.prev_steer = steer_n
+        terms = reward(outcome, c.reward)
+        self.timings["reward"] += time.perf_counter() - t1
+        self.frames.append(self._frame())
+        self.vectors.append(self._goal_vector())
+        info = self._info(terms)
+        info["collided"] = collided
+        if terms.end:
+            info["episode"] = self.record(terms.end)
+        return self._obs(), float(terms.total), terms.terminated, terms.truncated, info
+
+    def render(self) -> Optional[np.ndarray]:
+        """rgb_array: the latest camera frame [H, W, 3] uint8 (depth shown as grey)."""
+        if self.render_mode != "rgb_array" or self.episode is None:
+            return None
+        f = self.frames[-1]
+        return np.repeat(f, 3, 0).transpose(1, 2, 0) if f.shape[0] == 1 else f.transpose(1, 2, 0)
+
+    def close(self) -> None:
+        if self.actors is not None:
+            self.actors.remove()
+            self.actors = None
+        for w in self._worlds.values():
+            w.close()
+        self._worlds.clear()
+
+    # ------------------------------------------------------------------ internals
+    def _check_action(self, action) -> tuple[float, float]:
+        a = np.asarray(action, dtype=np.float64).reshape(-1)
+        if a.shape != (2,):
+            raise InvalidActionError(f"action must have 2 entries (speed, steering), got shape "
+                                     f"{np.shape(action)}")
+        if not np.isfinite(a).all():
+            raise InvalidActionError(f"action must be finite, got {a.tolist()}")
+        a = np.clip(a, -1.0, 1.0)
+        return float(max(a[0], 0.0)), float(a[1])
+
+    def _drive(self, speed: float, steer: float) -> bool:
+        """Physics substeps for one control step; True when any substep was blocked."""
+        c = self.config
+        dt = 1.0 / c.physics_hz
+        collided = False
+        for _ in range(c.substeps):
+            x0, y0 = self.state.x, self.state.y
+            self.state, hit = self.world.physics.step(self.state, speed, steer, dt)
+            collided |= bool(hit)
+            self.travelled += math.hypot(self.state.x - x0, self.state.y - y0)
+        self.trace.append((self.state.x, self.state.y))
+        return collided
+
+    def _frame(self) -> np.ndarray:
+        """Camera image [C, H, W] uint8 at the current pose."""
+        t0 = time.perf_counter()
+        c = self.config
+        w2c = world_to_camera(self.state.x, self.state.y, self.state.yaw, c.camera,
+                              self.jitter.at(self.t))
+        rgb, depth = self.world.view.draw(w2c)
+        self.timings["render"] += time.perf_counter() - t0
+        rgb, depth, t_obs, t_ped = self.actors.draw_over(rgb, depth, self.K, w2c)
+        self.timings["obstacles"] += t_obs
+        self.timings["pedestrians"] += t_ped
+        if c.variant == "depth":
+            return depth_to_u8(depth, c.camera.depth_max)[None]
+        t0 = time.perf_counter()
+        rgb = self.augmenter.apply(rgb, depth)
+        self.timings["augment"] += time.perf_counter() - t0
+        return np.ascontiguousarray(rgb.transpose(2, 0, 1))
+
+    def distance(self) -> float:
+        g = self.episode.goal
+        return math.hypot(g[0] - self.state.x, g[1] - self.state.y)
+
+    def _goal_vector(self) -> np.ndarray:
+        g = self.episode.goal
+        bearing = math.atan2(g[1] - self.state.y, g[0] - self.state.x) - self.state.yaw
+        heading = (bearing + math.pi) % (2 * math.pi) - math.pi
+        return np.array([self.distance(), heading / math.pi], np.float32)
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        return {"image": np.stack(self.frames), "vector": np.stack(self.vectors)}
+
+    def _info(self, terms: Optional[RewardTerms]) -> dict[str, Any]:
+        info: dict[str, Any] = {"scene_id": self.episode.scene_id, "distance": self.distance(),
+                                "geodesic": self.episode.geodesic, "steps": self.steps,
+                                "collision_events": self.collision_events, "end": ""}
+        if terms is not None:
+            info.update(end=terms.end, reward_terms={
+                "terminal": terms.terminal, "distance": terms.distance, "steer": terms.steer,
+                "crash": terms.crash, "time": terms.time})
+        return info
+
+    def record(self, end: str) -> EpisodeRecord:
+        """Metrics record of the episode so far."""
+        return EpisodeRecord(success=end == "success", shortest_length=self.shortest,
+                             path_length=self.travelled, collision_events=self.collision_events,
+                             collision_steps=self.collision_steps,
+                             proximity_steps=self.proximity_steps, steps=self.steps, end=end)
+
+    def expert_path(self) -> np.ndarray:
+        """A* waypoints [K, 2] the scripted expert follows (obstacles avoided)."""
+        return self.actors.expert_path
+
+    def robot_pose(self) -> tuple[float, float, float]:
+        return self.state.x, self.state.y, self.state.yaw
+
+    def topdown_state(self) -> dict[str, Any]:
+        """What the recorder draws (TEAM.md interface); positions in metres, world frame."""
+        w = self.world
+        return {"grid": w.assets.walkable.grid, "origin": w.assets.walkable.origin,
+                "resolution": w.assets.walkable.resolution,
+                "robot_xy": np.array([self.state.x, self.state.y]), "robot_yaw": self.state.yaw,
+                "path": np.array(self.trace), "planned_path": self.episode.path,
+                "goal": np.asarray(self.episode.goal), "obstacles": self.actors.obstacle_xy(),
+                "pedestrians": self.actors.pedestrian_xy()}
+
+
+def _with_overrides(conf: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
+    return replace(conf, **overrides) if overrides else conf

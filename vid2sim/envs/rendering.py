@@ -1,0 +1,63 @@
+"""What the robot sees: splats (rgb / depth variants) or the coloured visual mesh (mesh-rgb).
+
+`SceneView.draw(world_to_cam)` returns (rgb [H, W, 3] uint8, depth [H, W] float32, +inf where
+nothing was drawn). Splats are rendered with `vid2sim.splats` StaticScene (cpu backend, forward
+only) with the paper's screen-space covariance culling on; pixels whose splat coverage is below
+0.5 read as empty (+inf depth).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from vid2sim.envs.camera import intrinsics
+from vid2sim.envs.config import CameraConfig
+from vid2sim.envs.raster import rasterize
+from vid2sim.envs.scenes import MeshData
+from vid2sim.splats import Camera, GaussianModel, RasterSettings
+from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
+
+EMPTY_ALPHA = 0.5
+
+
+class SplatView:
+    """Splat renderer for one scene (not thread-safe: one StaticScene per env)."""
+
+    def __init__(self, model: GaussianModel, conf: CameraConfig, lod: bool = False) -> None:
+        self.conf = conf
+        self.K = intrinsics(conf)
+        self.scene = StaticScene(model, StaticSceneConfig(lod=lod, per_splat_outputs=False))
+        self.settings = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
+                                       cov_cull_alpha=conf.cov_cull_alpha,
+                                       active_sh_degree=model.sh_degree)
+
+    def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        K, c = self.K, self.conf
+        cam = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], c.width, c.height,
+                     torch.from_numpy(world_to_cam))
+        out = self.scene.render(cam, self.settings)
+        rgb = (out.rgb.numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
+        depth = out.depth.numpy().astype(np.float32)  # [H, W]
+        depth[out.alpha.numpy() < EMPTY_ALPHA] = np.inf
+        return rgb, depth
+
+
+class MeshView:
+    """The paper's traditional-simulator baseline: the bundle's coloured visual mesh, rasterised."""
+
+    def __init__(self, mesh: MeshData, conf: CameraConfig) -> None:
+        self.conf = conf
+        self.K = intrinsics(conf)
+        self.mesh = mesh
+
+    def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        m, c = self.mesh, self.conf
+        return rasterize(m.vertices, m.faces, m.face_colors, self.K, world_to_cam, c.width, c.height)
+
+
+def depth_to_u8(depth: np.ndarray, depth_max: float) -> np.ndarray:
+    """Metric depth [H, W] -> uint8 [H, W] (0 m -> 0, >= depth_max or empty -> 255)."""
+    d = np.where(np.isfinite(depth), depth, depth_max)
+    return (np.clip(d / depth_max, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+

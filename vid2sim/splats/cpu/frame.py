@@ -1,0 +1,255 @@
+"""One whole env frame in one thread, and many frames (cameras, scenes) in one kernel call.
+
+The env path renders tiny images (128x72): per frame the work is small, so thread fork/join
+between the phases (cull, project, sort/bin, composite) and the Python glue cost as much as
+the maths. `render_frame` runs every phase of one camera serially in one numba call;
+`render_frames` runs many cameras in parallel, one frame per worker at a time, so N envs pay
+the call and scheduling overhead once.
+
+Outputs are what an env reads: rgb over the background, alpha and expected depth
+(depth_acc / alpha, 0 where empty). With `blend_cap = 0` they equal `StaticScene.render`
+(same arithmetic, same order; tests/test_splats_frame.py); `blend_cap > 0` stops each pixel
+after that many blended splats (an approximation: the remaining transmittance shows the
+background).
+
+Scenes are packed (`pack_scenes`): concatenated Gaussian arrays and culling cells whose
+`cell_start` holds global row numbers, so a camera of scene s culls cells
+cell_lo[s]:cell_lo[s+1] and projects global rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit, prange
+
+from ._geom import jac_limits
+from ._sched import fetch_add, new_counter
+from .binning import _sort_and_bin_serial
+from .preprocess import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
+from .raster import A_MAX, A_MIN, HALF, ONE, S_MAX, T_MIN, ZERO
+from .static_kernels import _static_one, cull_cells
+
+F32 = np.float32
+# stats columns written per frame
+S_IN_VIEW, S_INSTANCES, S_BLENDS, S_COVERED = range(4)
+NS = 4
+
+
+@njit(cache=True)
+def project_serial(sel, n, means, cov, opacity, cut, normal_w, rgb, sh, deg, view, campos, cam,
+                   width, height, near, far, cov_alpha, fo, box, radii):
+    """project_static in one thread: rows r < n of fo [R, NF], box [R, 4], radii [R]."""
+    W, tw = view_parts(view)
+    lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
+    for r in range(n):
+        _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos,
+                    cam, lims, width, height, near, far, cov_alpha, fo, box, radii)
+
+
+@njit(cache=True)
+def _gather_tile(fo, box, inst, s, n, g, gb):
+    """Tile's splats inst[s:s+n] -> contiguous g [11, n] (x y a b c o cut r g b z rows) and
+    boxes gb [n, 4]: one cache line walk per column in the blend loop."""
+    for k in range(n):
+        v = inst[s + k]
+        g[0, k] = fo[v, F_X]
+        g[1, k] = fo[v, F_Y]
+        g[2, k] = fo[v, F_A]
+        g[3, k] = fo[v, F_B]
+        g[4, k] = fo[v, F_C]
+        g[5, k] = fo[v, F_O]
+        g[6, k] = min(fo[v, F_CUT], S_MAX)
+        g[7, k] = fo[v, F_R]
+        g[8, k] = fo[v, F_G]
+        g[9, k] = fo[v, F_BL]
+        g[10, k] = fo[v, F_Z]
+        for q in range(4):
+            gb[k, q] = box[v, q]
+
+
+@njit(cache=True)
+def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
+                   rlive, color, alpha, depth, blends_px, contrib):
+    """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
+
+    T [P], acc [P, 4], cnt [P], live [P], rlive [tile rows] are scratch; writes color
+    [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated z) and blends_px
+    [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
+    blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
+    pixel once its transmittance falls below t_stop (colour error <= t_stop). Returns the
+    number of blends."""
+    tw = x1 - x0
+    npx = tw * (y1 - y0)
+    for p in range(npx):
+        T[p] = ONE
+        cnt[p] = 0
+        live[p] = True
+        for c in range(4):
+            acc[p, c] = ZERO
+    for r in range(y1 - y0):
+        rlive[r] = tw
+    cap = blend_cap if blend_cap > 0 else 1 << 30
+    want_contrib = contrib.shape[0] > 0
+    n_live = npx
+    blends = 0
+    for k in range(n):
+        bx0 = max(gb[k, 0], x0)
+        bx1 = min(gb[k, 2] + 1, x1)
+        by0 = max(gb[k, 1], y0)
+        by1 = min(gb[k, 3] + 1, y1)
+        mx, my, ca, cb, cc = g[0, k], g[1, k], g[2, k], g[3, k], g[4, k]
+        o, ct = g[5, k], g[6, k]
+        c0, c1, c2, c3 = g[7, k], g[8, k], g[9, k], g[10, k]
+        wsum = ZERO
+        for py in range(by0, by1):
+            if rlive[py - y0] == 0:
+                continue  # every pixel of this tile row has stopped
+            dy = (F32(py) + HALF) - my
+            row = (py - y0) * tw - x0
+            for px in range(bx0, bx1):
+                p = row + px
+                if not live[p]:
+                    continue
+                dx = (F32(px) + HALF) - mx
+                sv = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
+                if sv < ZERO or sv > ct:
+                    continue
+                al = min(A_MAX, o * np.exp(-sv))
+                if al < A_MIN:
+                    continue
+                Tp = T[p]
+                Tn = Tp * (ONE - al)
+                if Tn < T_MIN:
+                    live[p] = False
+                    rlive[py - y0] -= 1
+                    n_live -= 1
+                    continue
+                w = al * Tp
+                a = acc[p]
+                a[0] += w * c0
+                a[1] += w * c1
+                a[2] += w * c2
+                a[3] += w * c3
+                wsum += w
+                T[p] = Tn
+                cnt[p] += 1
+                blends += 1
+                if cnt[p] >= cap or Tn < t_stop:
+                    live[p] = False
+                    rlive[py - y0] -= 1
+                    n_live -= 1
+        if want_contrib and wsum > ZERO:
+            contrib[inst[s + k]] += wsum
+        if n_live == 0:
+            break
+    for py in range(y0, y1):
+        for px in range(x0, x1):
+            p = (py - y0) * tw + px - x0
+            color[py, px, 0] = acc[p, 0]
+            color[py, px, 1] = acc[p, 1]
+            color[py, px, 2] = acc[p, 2]
+            alpha[py, px] = ONE - T[p]
+            depth[py, px] = acc[p, 3]
+            blends_px[py, px] = cnt[p]
+    return blends
+
+
+@njit(cache=True)
+def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color, alpha,
+                    depth, blends_px, contrib):
+    """Composite every tile of one frame in this thread; returns the number of blends."""
+    tiles_x = (width + tile - 1) // tile
+    n_tiles = tiles_x * ((height + tile - 1) // tile)
+    cap = 1
+    for t in range(n_tiles):
+        cap = max(cap, offsets[t + 1] - offsets[t])
+    g = np.empty((11, cap), np.float32)
+    gb = np.empty((cap, 4), np.int32)
+    npx = tile * tile
+    T = np.empty(npx, np.float32)
+    acc = np.empty((npx, 4), np.float32)
+    cnt = np.empty(npx, np.int32)
+    live = np.empty(npx, np.bool_)
+    rlive = np.empty(tile, np.int64)
+    blends = 0
+    for t in range(n_tiles):
+        s = offsets[t]
+        n = offsets[t + 1] - s
+        x0 = (t % tiles_x) * tile
+        y0 = (t // tiles_x) * tile
+        x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+        _gather_tile(fo, box, inst, s, n, g, gb)
+        blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
+                                 live, rlive, color, alpha, depth, blends_px, contrib)
+    return blends
+
+
+@njit(cache=True)
+def finish_env(color, alpha, depth_acc, bg, rgb, depth):
+    """rgb = color + (1 - alpha) bg; depth = depth_acc / alpha (0 where alpha == 0)."""
+    H, W = alpha.shape
+    for i in range(H):
+        for j in range(W):
+            a = alpha[i, j]
+            for c in range(3):
+                rgb[i, j, c] = color[i, j, c] + (ONE - a) * bg[c]
+            depth[i, j] = depth_acc[i, j] / max(a, F32(1e-6)) if a > ZERO else ZERO
+
+
+@njit(cache=True)
+def render_frame(c0, c1, centers, r_means, rho, cell_start, means, cov, opacity, cut, normal_w,
+                 rgb_dc, sh, deg, view, campos, cam, width, height, tile, near, far, cov_alpha,
+                 blend_cap, t_stop, bg, sel, fo, box, radii, color, out_rgb, out_alpha, out_depth,
+                 blends_px, contrib, stats):
+    """Every phase of one camera in this thread: cull cells c0:c1, project, sort/bin,
+    composite, finish. Scratch: sel [G], fo [G, NF], box [G, 4], radii [G], color [H, W, 3];
+    outputs out_rgb [H, W, 3], out_alpha / out_depth / blends_px [H, W]; stats [NS]."""
+    n = cull_cells(centers[c0:c1], r_means[c0:c1], rho[c0:c1], cell_start[c0:c1 + 1], view,
+                   cam, width, height, near, far, sel)
+    project_serial(sel, n, means, cov, opacity, cut, normal_w, rgb_dc, sh, deg, view, campos,
+                   cam, width, height, near, far, cov_alpha, fo, box, radii)
+    tiles_x = (width + tile - 1) // tile
+    n_tiles = tiles_x * ((height + tile - 1) // tile)
+    offsets, inst, _, _ = _sort_and_bin_serial(fo, box, n, tile, tiles_x, n_tiles, False)
+    blends = composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_stop, color,
+                             out_alpha, out_depth, blends_px, contrib)
+    finish_env(color, out_alpha, out_depth, bg, out_rgb, out_depth)
+    in_view = 0
+    for r in range(n):
+        if box[r, 2] >= box[r, 0]:
+            in_view += 1
+    covered = 0
+    for i in range(height):
+        for j in range(width):
+            if blends_px[i, j] > 0:
+                covered += 1
+    stats[S_IN_VIEW] = in_view
+    stats[S_INSTANCES] = offsets[n_tiles]
+    stats[S_BLENDS] = blends
+    stats[S_COVERED] = covered
+    return n
+
+
+@njit(parallel=True, cache=True)
+def render_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, means, cov, opacity, cut,
+                  normal_w, rgb_dc, sh, deg, views, campos, cams, width, height, tile, near, far,
+                  cov_alpha, blend_cap, t_stop, bg, sel, fo, box, radii, color, out_rgb, out_alpha,
+                  out_depth, blends_px, stats, n_workers):
+    """Render cameras i < len(scene_of) (camera i sees packed scene scene_of[i]: cells
+    cell_lo[s]:cell_lo[s+1]); n_workers draw whole frames from a shared counter. Scratch
+    is per worker: sel / radii [n_workers, G], fo [n_workers, G, NF], box [n_workers, G, 4],
+    color [n_workers, H, W, 3]; outputs are [N, H, W(, 3)], stats [N, NS]."""
+    n_cams = scene_of.shape[0]
+    nxt = new_counter()
+    no_contrib = np.zeros(0, np.float64)
+    for h in prange(n_workers):
+        while True:
+            i = fetch_add(nxt, 1)
+            if i >= n_cams:
+                break
+            s = scene_of[i]
+            render_frame(cell_lo[s], cell_lo[s + 1], centers, r_means, rho, cell_start, means,
+                         cov, opacity, cut, normal_w, rgb_dc, sh, deg, views[i], campos[i],
+                         cams[i], width, height, tile, near, far, cov_alpha, blend_cap, t_stop, bg,
+                         sel[h], fo[h], box[h], radii[h], color[h], out_rgb[i], out_alpha[i],
+                         out_depth[i], blends_px[i], no_contrib, stats[i])

@@ -1,0 +1,121 @@
+"""Sim-ready splats: the scene as the robot's 128x72 camera needs it, made once at load.
+
+Choice (issue 8): made when a scene is loaded for simulation, not stored in the bundle; the
+bundle keeps the full splats for viewing. The envs pass robot cameras sampled over the
+walkable map (`robot_cameras`), and `sim_ready` keeps the splats that carry the image there:
+
+1. Global significance (LightGaussian-style, but measured rather than estimated from
+   opacity x volume): each splat's summed blend weight alpha * T over every pixel of every
+   given view, at the env resolution. Sub-pixel splats that never win a pixel, splats hidden
+   behind others and splats never in view score ~0.
+2. Keep the most significant splats that together carry `keep_mass` of the total measured
+   weight; drop the rest (no merging: merged splats changed colours more than dropping the
+   least significant ones on the scenes measured).
+3. A per-pixel blend cap is a render-time setting (`SceneBatch.render(blend_cap=...)`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from ..camera import Camera, look_at
+from ..model import GaussianModel
+from ..types import RasterSettings
+from .frame import NS, render_frame
+from .function import camera_arrays
+from .preprocess import NF
+from .raster import kernel_tile
+from .static import StaticScene
+
+ENV_WIDTH, ENV_HEIGHT = 128, 72
+# The robot camera's intrinsics (the paper's 1280x720 sensor, scaled to 128x72): the paper gives
+# no focal length; a 90 deg horizontal field of view with a centred principal point is used.
+ENV_FOV_X_DEG = 90.0
+ROBOT_CAMERA_HEIGHT_M = 0.6
+
+
+@dataclass(frozen=True)
+class SimReadyConfig:
+    """keep_mass: fraction of the total measured blend weight the kept splats carry.
+    width/height: resolution the significance is measured at (the env's)."""
+
+    keep_mass: float = 0.995
+    width: int = ENV_WIDTH
+    height: int = ENV_HEIGHT
+
+
+def robot_cameras(xy: np.ndarray, yaw: np.ndarray, height_m: float = ROBOT_CAMERA_HEIGHT_M,
+                  width: int = ENV_WIDTH, height: int = ENV_HEIGHT,
+                  fov_x_deg: float = ENV_FOV_X_DEG, ground_z: float = 0.0) -> list[Camera]:
+    """Level forward cameras at xy [P, 2] (z-up metric frame, ground at ground_z), heading
+    yaw [P] radians (0 = +x), height_m above the ground, pinhole with fov_x_deg."""
+    f = 0.5 * width / np.tan(np.deg2rad(fov_x_deg) / 2)
+    out = []
+    for (x, y), a in zip(np.asarray(xy, np.float64), np.asarray(yaw, np.float64)):
+        eye = np.array([x, y, ground_z + height_m])
+        target = eye + np.array([np.cos(a), np.sin(a), 0.0])
+        out.append(Camera(f, f, width / 2, height / 2, width, height,
+                          look_at(eye, target, (0.0, 0.0, 1.0))))
+    return out
+
+
+def significance(scene: StaticScene, cameras: Sequence[Camera],
+                 settings: RasterSettings) -> np.ndarray:
+    """Summed blend weight alpha * T of each model splat over all pixels of all cameras:
+    [N] float64 in model order (splats the scene dropped at load score 0)."""
+    if scene.lod is not None:
+        raise ValueError("significance: needs an exact (non-LOD) StaticScene")
+    W, H = settings.width, settings.height
+    G = max(len(scene.means), 1)
+    sel, fo = np.empty(G, np.int64), np.empty((G, NF), np.float32)
+    box, radii = np.empty((G, 4), np.int32), np.empty(G, np.int32)
+    color, rgb = np.empty((H, W, 3), np.float32), np.empty((H, W, 3), np.float32)
+    alpha, depth, blends = (np.empty((H, W), np.float32), np.empty((H, W), np.float32),
+                            np.empty((H, W), np.int32))
+    contrib, stats = np.zeros(G, np.float64), np.zeros(NS, np.float64)
+    sig = np.zeros(len(scene.means), np.float64)  # [G] cached-row order
+    cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
+    deg = min(settings.active_sh_degree, scene.sh_degree)
+    bg = np.zeros(3, np.float32)
+    for cam in cameras:
+        view, campos, k = camera_arrays(cam)
+        contrib[:] = 0.0
+        n = render_frame(0, len(scene.centers), scene.centers, scene.r_means, scene.rho,
+                         scene.cell_start, scene.means, scene.cov, scene.opacity, scene.cut,
+                         scene.normal, scene.rgb, scene.sh, deg, view, campos, k, W, H,
+                         kernel_tile(settings.tile_size), float(settings.near),
+                         float(settings.far), cov_alpha, 0, 0.0, bg, sel, fo, box, radii, color, rgb,
+                         alpha, depth, blends, contrib, stats)
+        np.add.at(sig, sel[:n], contrib[:n])
+    out = np.zeros(scene.num, np.float64)
+    out[scene.index] = sig[:len(scene.index)]
+    return out
+
+
+def keep_by_mass(sig: np.ndarray, keep_mass: float) -> np.ndarray:
+    """Boolean mask [N] of the most significant entries of sig [N] whose sum reaches
+    keep_mass of the total (zero-significance entries are never kept)."""
+    order = np.argsort(-sig, kind="stable")
+    total = float(sig.sum())
+    keep = np.zeros(len(sig), bool)
+    if total <= 0.0:
+        return keep
+    csum = np.cumsum(sig[order])
+    k = int(np.searchsorted(csum, keep_mass * total, side="left")) + 1
+    keep[order[:min(k, len(sig))]] = True
+    return keep & (sig > 0.0)
+
+
+def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
+              config: SimReadyConfig = SimReadyConfig(),
+              settings: RasterSettings | None = None) -> tuple[GaussianModel, np.ndarray]:
+    """The splats of `model` that carry keep_mass of the image over `cameras` (robot views
+    at the env resolution), and the significance [N] they were chosen by."""
+    st = settings or RasterSettings(config.width, config.height, active_sh_degree=0)
+    sig = significance(StaticScene(model), cameras, st)
+    keep = keep_by_mass(sig, config.keep_mass)
+    return model.index(torch.from_numpy(keep)), sig

@@ -1,0 +1,173 @@
+"""Held-out evaluation with the paper's protocol: test scenes x 25 trials, SR / SPL / Cost / SNS.
+
+Each trial resets a `vid2sim/PointNav-v0` (or SocialNav) env on one test scene with a fixed seed
+(trial k of every scene uses seed `seed + k`, so two policies see the same episodes), with
+evaluation settings (no camera jitter, no augmentation) and 0 to 5 static obstacles. The metrics
+are the envs' (`vid2sim.envs.metrics`); each mean comes with a 95 % percentile-bootstrap
+confidence interval over episodes (1000 resamples, fixed seed).
+
+Variants (the paper's): `--obstacles none|static|dynamic` (dynamic = SocialNav pedestrians),
+`--variant rgb|depth|mesh-rgb` (depth oracle, mesh-RGB baseline). Policies: a training run
+folder (its `final.zip` or `checkpoints/last.zip`), `random`, or `expert` (A* pure pursuit).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Callable, Optional
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3 import SAC
+
+import vid2sim.envs  # noqa: F401  (registers the env ids)
+import vid2sim.training.privileged  # noqa: F401  (registers the privileged-observation env id)
+from vid2sim.envs.config import EnvConfig, EpisodeConfig
+from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
+from vid2sim.envs.obstacles import ObstacleConfig
+from vid2sim.registry import Registry
+
+OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
+METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
+
+
+@dataclass
+class EvalConfig:
+    registry: str
+    policy: str  # run folder, SAC .zip, "random" or "expert"
+    scene_ids: list[str] = field(default_factory=list)  # default: the split's held-out test scenes
+    split_seed: int = 0
+    trials: int = 25
+    obstacles: str = "static"  # none | static | dynamic (SocialNav pedestrians)
+    variant: str = "rgb"  # rgb | depth | mesh-rgb
+    pedestrians: tuple[int, int] = (1, 4)
+    max_steps: Optional[int] = None  # None: the env's 3000
+    seed: int = 1000
+    checkout_root: Optional[str] = None
+    env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
+
+
+@dataclass
+class Interval:
+    mean: float
+    low: float
+    high: float
+
+
+@dataclass
+class EvalReport:
+    config: dict
+    episodes: int
+    metrics: dict[str, Interval]
+    per_scene: dict[str, dict[str, float]]
+    records: list[dict]
+
+    def to_json(self) -> str:
+        return json.dumps(asdict(self), indent=2)
+
+
+# ------------------------------------------------------------------ policies
+Policy = Callable[[gym.Env, dict], np.ndarray]
+
+
+def policy_path(policy: str) -> Path:
+    p = Path(policy)
+    for cand in (p, p / "final.zip", p / "checkpoints" / "last.zip"):
+        if cand.is_file():
+            return cand
+    raise FileNotFoundError(f"no SAC checkpoint at {policy} (looked for final.zip, checkpoints/last.zip)")
+
+
+def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], None]]:
+    """(act(env, obs) -> action, on_reset(env)) for a run folder, 'random' or 'expert'."""
+    if policy == "random":
+        rng = np.random.default_rng(seed)
+        return (lambda env, obs: rng.uniform(-1, 1, 2).astype(np.float32)), (lambda env: None)
+    if policy == "expert":
+        expert = PurePursuitExpert()
+        return (lambda env, obs: expert.act(env)), expert.reset
+    model = SAC.load(policy_path(policy), device="cpu")
+    return (lambda env, obs: model.predict(obs, deterministic=True)[0]), (lambda env: None)
+
+
+# ------------------------------------------------------------------ episodes
+def eval_env_config(config: EvalConfig) -> tuple[str, EnvConfig]:
+    """Env id and evaluation config: no jitter or augmentation, the obstacle mode's counts."""
+    if config.obstacles not in OBSTACLE_MODES:
+        raise ValueError(f"obstacles must be one of {', '.join(OBSTACLE_MODES)}, got {config.obstacles!r}")
+    task = "SocialNav" if config.obstacles == "dynamic" else "PointNav"
+    lo, hi = OBSTACLE_MODES[config.obstacles]
+    obstacles = replace(ObstacleConfig(), min_count=lo, max_count=hi)
+    episode = replace(EpisodeConfig(), pedestrians=config.pedestrians)
+    env_conf = EnvConfig(variant=config.variant, training=False, episode=episode, obstacles=obstacles)
+    if config.max_steps:
+        env_conf = replace(env_conf, reward=replace(env_conf.reward, max_steps=config.max_steps))
+    return config.env_id or f"vid2sim/{task}-v0", env_conf
+
+
+def run_episode(env: gym.Env, act: Policy, on_reset: Callable, seed: int, scene_id: str) -> EpisodeRecord:
+    obs, _ = env.reset(seed=seed, options={"scene_id": scene_id})
+    on_reset(env)
+    while True:
+        obs, _, terminated, truncated, info = env.step(act(env, obs))
+        if terminated or truncated:
+            return info["episode"]
+
+
+def held_out_scenes(config: EvalConfig) -> list[str]:
+    if config.scene_ids:
+        return list(config.scene_ids)
+    return list(Registry(config.registry).split(seed=config.split_seed).test)
+
+
+# ------------------------------------------------------------------ statistics
+def episode_values(records: list[EpisodeRecord]) -> dict[str, np.ndarray]:
+    return {"sr": np.array([float(r.success) for r in records]), "spl": np.array([spl(r) for r in records]),
+            "cost": np.array([float(r.collision_events) for r in records]),
+            "sns": np.array([sns(r) for r in records]), "sns_proximity": np.array([sns_proximity(r) for r in records])}
+
+
+def bootstrap_ci(values: np.ndarray, n: int = 1000, level: float = 0.95, seed: int = 0) -> Interval:
+    """Mean with a percentile-bootstrap interval over episodes."""
+    rng = np.random.default_rng(seed)
+    means = values[rng.integers(0, len(values), (n, len(values)))].mean(axis=1)
+    lo, hi = np.quantile(means, [(1 - level) / 2, 1 - (1 - level) / 2])
+    return Interval(float(values.mean()), float(lo), float(hi))
+
+
+def summarize(records: list[EpisodeRecord], scenes: list[str]) -> tuple[dict[str, Interval], dict]:
+    values = episode_values(records)
+    metrics = {k: bootstrap_ci(v) for k, v in values.items()}
+    per_scene = {}
+    for sid in sorted(set(scenes)):
+        idx = [i for i, s in enumerate(scenes) if s == sid]
+        per_scene[sid] = {k: float(v[idx].mean()) for k, v in values.items()}
+    return metrics, per_scene
+
+
+def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] = None) -> EvalReport:
+    """Run `trials` episodes on every test scene and aggregate the metrics with CIs."""
+    scenes = held_out_scenes(config)
+    if not scenes:
+        raise ValueError("no test scenes: the registry split has an empty test set")
+    env_id, env_conf = eval_env_config(config)
+    env = gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
+                   checkout_root=config.checkout_root)
+    act, on_reset = load_policy(config.policy, config.seed)
+    records, scene_of = [], []
+    total = len(scenes) * config.trials
+    try:
+        for sid in scenes:
+            for k in range(config.trials):
+                records.append(run_episode(env, act, on_reset, config.seed + k, sid))
+                scene_of.append(sid)
+                if progress:
+                    progress(len(records), total)
+    finally:
+        env.close()
+    metrics, per_scene = summarize(records, scene_of)
+    rows = [{"scene_id": s, **asdict(r)} for s, r in zip(scene_of, records)]
+    return EvalReport(asdict(config), len(records), metrics, per_scene, rows)

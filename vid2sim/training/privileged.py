@@ -1,0 +1,88 @@
+"""Privileged-observation PointNav: the goal vector plus range readings instead of pixels.
+
+Used to show that the task, reward and episode set are learnable at CPU budgets (issue 13)
+before spending pixel-SAC compute. Same scenes, episodes, dynamics, reward and metrics as
+`vid2sim/PointNav-v0` (it subclasses `NavEnv`); only the observation differs and the camera is
+not rendered. Observation (float32, flat):
+  [distance / 30, heading / pi,
+   N mesh ranges / R  (pybullet `rayTestBatch` from the robot centre at 0.3 m height against the
+                       collision mesh and obstacles, rays over [-fov/2, fov/2] around the heading),
+   N walkable ranges / R (the same rays marched over the walkable map in 0.1 m steps: distance to
+                          the first non-walkable cell, since leaving the map also ends an episode)]
+with R = `max_range` metres (readings saturate at 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any, Optional
+
+import gymnasium as gym
+import numpy as np
+import pybullet as pb
+from gymnasium import spaces
+
+from vid2sim.envs.nav_env import NavEnv
+from vid2sim.formats.walkable import WalkableGrid
+
+PRIVILEGED_ID = "vid2sim/PointNavPrivileged-v0"
+
+
+class PrivilegedNavEnv(NavEnv):
+    def __init__(self, *args: Any, n_rays: int = 11, fov_deg: float = 200.0, max_range: float = 5.0,
+                 ray_height: float = 0.3, max_steps: Optional[int] = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if max_steps:  # a shorter training horizon (truncation, bootstrapped); evaluation keeps 3000
+            self.config = replace(self.config, reward=replace(self.config.reward, max_steps=max_steps))
+        self.n_rays, self.max_range, self.ray_height = n_rays, max_range, ray_height
+        self.angles = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n_rays))
+        self.march = np.arange(0.1, max_range + 1e-9, 0.1)
+        self.observation_space = spaces.Box(-1.0, 1e3, (2 + 2 * n_rays,), np.float32)
+
+    def _frame(self) -> np.ndarray:
+        """No camera: the privileged agent does not see pixels (saves the render)."""
+        return np.zeros((1, 1, 1), np.uint8)
+
+    def _walkable(self) -> WalkableGrid:
+        w = self.world.assets.walkable
+        if getattr(self, "_grid_for", None) is not self.world:
+            self._grid = WalkableGrid(np.asarray(w.grid), np.asarray(w.origin, np.float64), float(w.resolution))
+            self._grid_for = self.world
+        return self._grid
+
+    def ranges(self) -> tuple[np.ndarray, np.ndarray]:
+        """(mesh ranges, walkable ranges) in metres, one per ray."""
+        x, y, yaw = self.state.x, self.state.y, self.state.yaw
+        dirs = np.stack([np.cos(yaw + self.angles), np.sin(yaw + self.angles)], axis=1)
+        start = np.array([x, y, self.ray_height])
+        ends = start + np.concatenate([dirs * self.max_range, np.zeros((self.n_rays, 1))], axis=1)
+        phys = self.world.physics
+        hits = pb.rayTestBatch([start.tolist()] * self.n_rays, ends.tolist(), physicsClientId=phys.client)
+        mesh = np.array([h[2] * self.max_range if h[0] not in (-1, phys.robot_id) else self.max_range
+                         for h in hits])
+        pts = np.array([x, y]) + dirs[:, None, :] * self.march[None, :, None]  # [N, S, 2]
+        ok = self._walkable().lookup(pts[..., 0], pts[..., 1])
+        first_bad = np.where(ok.all(axis=1), len(self.march), np.argmin(ok, axis=1))
+        walk = np.where(first_bad < len(self.march), self.march[np.minimum(first_bad, len(self.march) - 1)],
+                        self.max_range)
+        return mesh, walk
+
+    def _obs(self) -> np.ndarray:  # type: ignore[override]
+        dist_heading = self._goal_vector()
+        mesh, walk = self.ranges()
+        return np.concatenate([[dist_heading[0] / 30.0, dist_heading[1]], mesh / self.max_range,
+                               walk / self.max_range]).astype(np.float32)
+
+
+def register() -> None:
+    if PRIVILEGED_ID not in gym.registry:
+        gym.register(PRIVILEGED_ID, entry_point="vid2sim.training.privileged:PrivilegedNavEnv",
+                     kwargs={"task": "pointnav"})
+
+
+register()
+
+
+def make(registry: str, scenes: Any, **kwargs: Any) -> gym.Env:
+    return gym.make(PRIVILEGED_ID, registry=registry, scenes=scenes, **kwargs)
+

@@ -1,0 +1,145 @@
+"""Scene-count study: how held-out success grows with the number of training scenes.
+
+For every count N and seed s: train SAC on the registry split's nested train subset of size N
+(train-1 within train-5 within ...; the registry provides them), then evaluate on the split's
+held-out test scenes. Each (N, s) training + evaluation is one Ray task (`num_cpus` each), so a
+cluster runs them side by side. Counts larger than the train pool are clipped, with a warning.
+Output: `study.json`, a table, and `study.png` (SR and SPL against N, mean and spread over seeds).
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Optional
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import ray  # noqa: E402
+
+from vid2sim.registry import Registry  # noqa: E402
+from vid2sim.training.config import SACConfig, TrainConfig  # noqa: E402
+from vid2sim.training.evaluate import EvalConfig, evaluate  # noqa: E402
+from vid2sim.training.sac import train  # noqa: E402
+
+
+@dataclass
+class StudyConfig:
+    registry: str
+    out_dir: str
+    counts: list[int]
+    seeds: int = 2
+    split_seed: int = 0
+    total_steps: int = 20_000  # env steps per training
+    n_envs: int = 2
+    trials: int = 25
+    obstacles: str = "static"
+    env_kwargs: dict = field(default_factory=dict)
+    sac: SACConfig = field(default_factory=SACConfig)
+    num_cpus_per_run: float = 1.0
+    env_id: str = "vid2sim/PointNav-v0"  # or PRIVILEGED_ID (goal vector + ranges, no pixels)
+    env_module: str = "vid2sim.envs"
+    eval_max_steps: Optional[int] = None  # evaluation episode limit (None: the env's 3000)
+
+
+@dataclass
+class StudyRow:
+    count: int
+    seed: int
+    run_dir: str
+    scene_ids: list[str]
+    sr: float
+    spl: float
+    cost: float
+    train_steps: int
+    train_wall_s: float
+
+
+def clip_counts(counts: list[int], available: int) -> list[int]:
+    """Counts clipped to the train pool (deduplicated, sorted); warns about each clipped one."""
+    out = []
+    for c in counts:
+        if c > available:
+            warnings.warn(f"count {c} clipped to {available}: the registry's train pool holds {available} scenes",
+                          stacklevel=2)
+        c = max(1, min(c, available))
+        if c not in out:
+            out.append(c)
+    return sorted(out)
+
+
+def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) -> StudyRow:
+    """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes."""
+    run_dir = Path(config.out_dir) / f"n{count}_s{seed}"
+    tc = TrainConfig(run_dir=str(run_dir), total_steps=config.total_steps, registry=config.registry,
+                     env_id=config.env_id, env_module=config.env_module,
+                     split_seed=config.split_seed, train_scenes=count, scene_ids=list(scene_ids),
+                     n_envs=config.n_envs, n_actors=0, seed=seed, env_kwargs=dict(config.env_kwargs),
+                     checkpoint_every=max(config.total_steps, 1), sac=config.sac)
+    result = train(tc, progress_bar=False)
+    report = evaluate(EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
+                                 trials=config.trials, obstacles=config.obstacles, env_id=config.env_id,
+                                 max_steps=config.eval_max_steps,
+                                 checkout_root=str(Path(config.out_dir) / "checkouts")))
+    (run_dir / "eval.json").write_text(report.to_json())
+    m = report.metrics
+    return StudyRow(count, seed, str(run_dir), list(scene_ids), m["sr"].mean, m["spl"].mean, m["cost"].mean,
+                    result.num_timesteps, result.wall_s)
+
+
+_run_remote = ray.remote(run_one)
+
+
+def run_study(config: StudyConfig) -> list[StudyRow]:
+    """All (count, seed) runs as Ray tasks (needs `ray.init`); writes study.json and study.png."""
+    out = Path(config.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    pool = Registry(config.registry).split(seed=config.split_seed)
+    counts = clip_counts(config.counts, len(pool.train))
+    split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
+    remote = _run_remote.options(num_cpus=config.num_cpus_per_run)
+    futures = [remote.remote(config, n, s, split.train_subsets[n]) for n in counts for s in range(config.seeds)]
+    rows = ray.get(futures)
+    summary = {"config": asdict(config), "counts": counts, "test_scenes": split.test,
+               "rows": [asdict(r) for r in rows], "aggregate": aggregate(rows)}
+    (out / "study.json").write_text(json.dumps(summary, indent=2))
+    plot(rows, out / "study.png", config)
+    return rows
+
+
+def aggregate(rows: list[StudyRow]) -> dict[str, dict[str, float]]:
+    """Per count: mean and std over seeds of SR and SPL."""
+    out = {}
+    for n in sorted({r.count for r in rows}):
+        sel = [r for r in rows if r.count == n]
+        out[str(n)] = {"sr_mean": float(np.mean([r.sr for r in sel])), "sr_std": float(np.std([r.sr for r in sel])),
+                       "spl_mean": float(np.mean([r.spl for r in sel])),
+                       "spl_std": float(np.std([r.spl for r in sel])), "seeds": len(sel)}
+    return out
+
+
+def plot(rows: list[StudyRow], path: Path, config: Optional[StudyConfig] = None) -> Path:
+    agg = aggregate(rows)
+    counts = [int(n) for n in agg]
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.2))
+    for ax, key, label in zip(axes, ("sr", "spl"), ("success rate", "SPL")):
+        for r in rows:
+            ax.plot(r.count, getattr(r, key), "o", color="0.7", ms=4)
+        ax.errorbar(counts, [agg[str(n)][f"{key}_mean"] for n in counts],
+                    yerr=[agg[str(n)][f"{key}_std"] for n in counts], marker="s", capsize=4)
+        ax.set_xlabel("training scenes")
+        ax.set_ylabel(label)
+        ax.set_ylim(-0.05, 1.05)
+    if config:
+        fig.suptitle(f"{config.total_steps} env steps per run, {config.seeds} seeds, {config.trials} trials/test scene",
+                     fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
