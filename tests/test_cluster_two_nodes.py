@@ -38,7 +38,7 @@ from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.factory.synthetic.stage import main as make_street
 from vid2sim.registry import Registry
 
-BACK_HALF = ("recon", "meshing", "bundle")
+BACK_HALF = ("recon", "meshing", "walkable", "bundle")
 
 
 class Traced:
