@@ -12,12 +12,14 @@ case "${1:-}" in
   ingest)  # --working-dir ships manifests/ (and the code) to the cluster
     ray job submit --address "$RAY_ADDRESS" --entrypoint-num-cpus 0 --working-dir . -- \
       vid2sim ingest "${MANIFEST:-manifests/cluster_s3.yaml}" --registry "$DATA/registry" \
-      --workdir "$DATA/work" --preset fast --json ;;
+      --workdir "$DATA/work" --preset fast --ray-address auto --json ;;
   train)
     ray job submit --address "$RAY_ADDRESS" --entrypoint-num-cpus 0 -- \
-      vid2sim train --registry "$DATA/registry" --runs "$DATA/runs/train-1" ;;
+      vid2sim train --registry "$DATA/registry" --run "$DATA/runs/train-1" --actors 8 --envs 16 \
+      --ray-address auto ;;
   study)
     ray job submit --address "$RAY_ADDRESS" --entrypoint-num-cpus 0 -- \
-      vid2sim study --registry "$DATA/registry" --runs "$DATA/runs/study-1" --scenes 1,5,15,30 --seeds 3 ;;
+      vid2sim study --registry "$DATA/registry" --out "$DATA/runs/study-1" --counts 1,5,15,30 --seeds 3 \
+      --ray-address auto ;;
   *) echo "usage: $0 ingest|train|study" >&2; exit 2 ;;
 esac

@@ -143,10 +143,12 @@ def ray_env(token: str, scratch: Path, extra: dict[str, str]) -> dict[str, str]:
     return env
 
 
-def _start_node(cluster: RayCluster, name: str, head_port: int, head: bool, extra: dict) -> RayNode:
-    temp_dir, scratch = cluster.root / name, cluster.root / f"{name}-scratch"
+def _start_node(cluster: RayCluster, name: str, head_port: int, head: bool, extra: dict,
+                attempt: int = 0) -> RayNode:
+    folder = name if attempt == 0 else f"{name}-retry{attempt}"
+    temp_dir, scratch = cluster.root / folder, cluster.root / f"{name}-scratch"
     temp_dir.mkdir()
-    scratch.mkdir()
+    scratch.mkdir(exist_ok=True)
     args = [str(BIN / "ray"), "start", "--block", "--num-cpus", "1", "--node-ip-address", "127.0.0.1",
             "--temp-dir", str(temp_dir), "--object-store-memory", str(100 * 2**20),
             "--disable-usage-stats", "--dashboard-agent-listen-port", str(free_port()),
@@ -156,7 +158,7 @@ def _start_node(cluster: RayCluster, name: str, head_port: int, head: bool, extr
                  "--dashboard-port", str(free_port()), "--ray-client-server-port", str(free_port())]
     else:
         args += ["--address", f"127.0.0.1:{head_port}"]
-    log = open(cluster.root / f"{name}.log", "wb")
+    log = open(cluster.root / f"{folder}.log", "wb")
     proc = subprocess.Popen(args, env=ray_env(cluster.env["RAY_AUTH_TOKEN"], scratch, extra),
                             stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
     node = RayNode(proc, temp_dir, scratch)
@@ -164,18 +166,51 @@ def _start_node(cluster: RayCluster, name: str, head_port: int, head: bool, extr
     return node
 
 
-def _wait_nodes(cluster: RayCluster, count: int, timeout: float = 120.0) -> None:
-    """Wait until `count` nodes are alive (checked from a separate authenticated driver)."""
+def _node_log(cluster: RayCluster, node: RayNode) -> str:
+    return (cluster.root / f"{node.temp_dir.name}.log").read_text(errors="replace")
+
+
+def _start_with_retry(cluster: RayCluster, name: str, head_port: int, head: bool, extra: dict,
+                      attempts: int = 3, timeout: float = 300.0) -> None:
+    """Start a node; retry when Ray's fixed 30 s raylet registration wait runs out (it does on a
+    heavily loaded machine), after reaping whatever the failed start left behind."""
+    for attempt in range(attempts):
+        node = _start_node(cluster, name, head_port, head, extra, attempt)
+        deadline = time.monotonic() + timeout
+        while node.proc.poll() is None and "Ray runtime started" not in _node_log(cluster, node) \
+                and time.monotonic() < deadline:
+            time.sleep(1.0)
+        if node.proc.poll() is None:
+            return  # started (or still starting: _wait_nodes decides)
+        if "timed out during startup" not in _node_log(cluster, node) or attempt == attempts - 1:
+            return  # _wait_nodes reports the failure with the log
+        cluster.nodes.remove(node)
+        for p in psutil.process_iter(["cmdline"]):  # the failed start's gcs/raylet (our temp dir)
+            if any(str(node.temp_dir) in a for a in (p.info["cmdline"] or [])):
+                p.kill()
+
+
+def _wait_nodes(cluster: RayCluster, count: int, timeout: float = 400.0) -> None:
+    """Wait until every node's `ray start` reported success and `count` nodes are alive (checked
+    from a separate authenticated driver; probes that time out on a loaded machine are retried)."""
     code = ("import ray,sys; ray.init(address=sys.argv[1], log_to_driver=False);"
             "print(sum(n['Alive'] for n in ray.nodes()))")
     t0 = time.monotonic()
     while time.monotonic() - t0 < timeout:
+        logs = []
         for n in cluster.nodes:
+            log = _node_log(cluster, n)
             if n.proc.poll() is not None:
-                log = (cluster.root / f"{n.temp_dir.name}.log").read_text(errors="replace")
                 raise RuntimeError(f"ray node {n.temp_dir.name} exited: {log[-2000:]}")
-        out = subprocess.run([sys.executable, "-c", code, cluster.address], env=cluster.env,
-                             capture_output=True, text=True, timeout=60)
+            logs.append(log)
+        if not all("Ray runtime started" in log for log in logs):
+            time.sleep(1.0)
+            continue
+        try:
+            out = subprocess.run([sys.executable, "-c", code, cluster.address], env=cluster.env,
+                                 capture_output=True, text=True, timeout=180)
+        except subprocess.TimeoutExpired:
+            continue
         if out.returncode == 0 and out.stdout.strip().splitlines()[-1:] == [str(count)]:
             return
         time.sleep(1.0)
@@ -213,9 +248,9 @@ def ray_cluster(workers: int = 1, extra_env: dict[str, str] | None = None) -> It
     extra = dict(extra_env or {})
     cluster = RayCluster(f"127.0.0.1:{port}", ray_env(token, root / "driver-scratch", extra), root)
     try:
-        _start_node(cluster, "node0", port, True, extra)
+        _start_with_retry(cluster, "node0", port, True, extra)
         for i in range(workers):
-            _start_node(cluster, f"node{i + 1}", port, False, extra)
+            _start_with_retry(cluster, f"node{i + 1}", port, False, extra)
         _wait_nodes(cluster, workers + 1)
         yield cluster
     finally:

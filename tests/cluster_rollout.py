@@ -5,7 +5,8 @@ Gymnasium env (CartPole-v1) and trains a linear policy by random search (the dri
 best perturbation each round). Each actor first checks the committed scene out of the registry
 on its own node (object store, nothing shared) and reads its walkable map, so the job proves the
 registry is readable from every node; each actor writes its own stats into the run folder on the
-store, and the driver writes the run's marker last.
+store and tags the scene in the registry (commits from worker nodes, concurrently); the driver
+writes the run's marker last.
 """
 
 from __future__ import annotations
@@ -54,11 +55,13 @@ class RolloutWorker:
                 done = term or trunc
         return total / episodes
 
-    def report(self, work_uri: str, run_key: str) -> dict:
-        """Write this worker's stats into the run folder from its own node."""
+    def report(self, work_uri: str, run_key: str, registry_uri: str, scene_id: str) -> dict:
+        """From this node: write the worker's stats into the run folder and tag the scene in the
+        registry (the workers commit concurrently to the same scene)."""
         info = {**self.where(), "env_steps": self.steps}
         name = info["node_id"][:12]
         ObjectStore(work_uri).write_bytes(f"{run_key}/workers/{name}.json", json.dumps(info).encode())
+        info["tag_version"] = Registry(registry_uri).tag(scene_id, f"rollout-{name}").version
         return info
 
 

@@ -38,7 +38,7 @@ from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.factory.synthetic.stage import main as make_street
 from vid2sim.registry import Registry
 
-BACK_HALF = ("recon", "meshing", "bundle")
+BACK_HALF = ("recon", "meshing", "walkable", "bundle")
 
 
 class Traced:
@@ -89,7 +89,8 @@ def drive(address: str, work_uri: str, registry_uri: str, out: Path) -> None:
         workers = [RolloutWorker.options(scheduling_strategy="SPREAD").remote(
             registry_uri, "synthetic-street-1", seed) for seed in range(2)]
         report["curve"] = train(workers, rounds=4, rng=np.random.default_rng(0))
-        report["workers"] = ray.get([w.report.remote(work_uri, "runs/r1") for w in workers])
+        report["workers"] = ray.get([w.report.remote(work_uri, "runs/r1", registry_uri, "synthetic-street-1")
+                                     for w in workers])
         store.write_bytes("runs/r1/stage.json", json.dumps({"curve": report["curve"]}).encode())
     ray.shutdown()
     out.write_text(json.dumps(report))
@@ -121,6 +122,9 @@ def test_two_node_ingest_and_rollout_on_object_storage(tmp_path, monkeypatch):
         assert {i["scratch"] for i in infos} == {str(n.scratch) for n in cluster.nodes}
         assert all(i["walkable_cells"] > 0 and i["env_steps"] > 0 for i in infos)
         assert report["curve"][-1] >= report["curve"][0]
+        tags = set(registry.show("synthetic-street-1").tags)  # committed from both worker nodes
+        assert tags == {f"rollout-{i['node_id'][:12]}" for i in infos}
+        assert sorted(i["tag_version"] for i in infos) == [2, 3]
         assert len(list(store.list_files("runs/r1/workers"))) == 2 and store.marker("runs/r1")
 
 

@@ -39,10 +39,11 @@ def local_clip_dir(work_uri: str, clip_id: str) -> Path:
     return scratch_root() / f"work-{tag}" / clip_id
 
 
-def sync_down(store: ObjectStore, clip_id: str, local: Path) -> list[str]:
+def sync_down(store: ObjectStore, clip_id: str, local: Path,
+              names: tuple[str, ...] = STAGE_FOLDERS) -> list[str]:
     """Fetch the clip's finished stage folders the node lacks (or holds stale); returns them."""
     fetched = []
-    for name in STAGE_FOLDERS:
+    for name in names:
         remote = store.marker(f"{clip_id}/{name}")
         if remote is None:
             continue
@@ -67,7 +68,7 @@ def sync_up(store: ObjectStore, clip_id: str, local: Path, folders: list[str]) -
     return pushed
 
 
-def _localize_source(ctx: dict, local: Path) -> dict:
+def _localize_source(ctx: dict) -> dict:
     """Re-resolve a URI source on this node when the driver's cached copy is not here."""
     job = ctx.get("job")
     source = getattr(getattr(job, "spec", None), "source", None)
@@ -80,7 +81,7 @@ def _localize_source(ctx: dict, local: Path) -> dict:
 def fetch_from_store(work_uri: str, clip_id: str, rel: str) -> Path:
     """Local copy (this node's scratch) of `<clip>/<rel>` from the store, e.g. a bundle to commit."""
     local = local_clip_dir(work_uri, clip_id)
-    sync_down(ObjectStore(work_uri), clip_id, local)
+    sync_down(ObjectStore(work_uri), clip_id, local, (rel.split("/")[0],))
     return local / rel
 
 
@@ -93,7 +94,7 @@ def run_on_store(fn: Callable[[dict], dict], ctx: dict) -> dict:
     local_ctx = {k: str(local / v) if k.endswith("_dir") and isinstance(v, str) and not os.path.isabs(v)
                  else v for k, v in ctx.items()}
     local_ctx["clip_dir"] = str(local)
-    added = fn(_localize_source(local_ctx, local)) or {}
+    added = fn(_localize_source(local_ctx)) or {}
     rel = {k: os.path.relpath(v, local) if k.endswith("_dir") else v for k, v in added.items()}
     sync_up(store, clip_id, local, [v for k, v in rel.items() if k.endswith("_dir")])
     return rel
