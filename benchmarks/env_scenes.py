@@ -50,7 +50,7 @@ def build(name: str) -> Optional[Path]:
     t0 = time.perf_counter()
     if name == "demo":
         from vid2sim.factory.synthetic.config import preset as street_preset
-        from vid2sim.factory.synthetic.stage import main as make_street
+        from vid2sim.factory.synthetic.make_street import main as make_street
 
         street = street_preset("demo", seed=0)
         video = make_street(street, CACHE / name / "synthetic") / "video.mp4"

@@ -29,13 +29,14 @@ from cluster_rollout import RolloutWorker, train
 
 from vid2sim.factory.ingest.clips import ClipSpec
 from vid2sim.factory.ingest.sources import resolve_source
+from vid2sim.factory.evaluation.corridor import CorridorConfig
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.runtime.object_store import ObjectStore
 from vid2sim.factory.runtime.orchestrator import run_clips
 from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, bundle_path, stage_specs
 from vid2sim.factory.runtime.stage_cache import mark_done
 from vid2sim.factory.synthetic.config import preset as street_preset
-from vid2sim.factory.synthetic.stage import main as make_street
+from vid2sim.factory.synthetic.make_street import main as make_street
 from vid2sim.registry import Registry
 
 BACK_HALF = ("recon", "meshing", "walkable", "bundle")
@@ -55,6 +56,11 @@ def _conf() -> PipelineConfig:
     conf = PipelineConfig(recon=recon_preset("fast", iterations=60, max_width=160, checkpoint_every=1000))
     conf.recon.densify = replace(conf.recon.densify, start_iter=20, stop_iter=50, every=10)
     conf.recon.loss = replace(conf.recon.loss, geometry_from_iter=20)
+    # This test checks distribution (stages on both nodes, store, commits), not scene quality:
+    # a 60-iteration reconstruction is too rough for the walked-corridor gate, so the gate is
+    # opened here (the gate itself is tested in test_corridor.py and test_pipeline.py).
+    conf.corridor = CorridorConfig(gate_min_walkable_fraction=0.0, gate_max_components=1000,
+                                   gate_max_area_m2=1e9)
     return conf
 
 
