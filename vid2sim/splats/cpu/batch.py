@@ -34,7 +34,7 @@ class EnvFrames:
     rgb: torch.Tensor
     alpha: torch.Tensor
     depth: torch.Tensor
-    blends: torch.Tensor
+    blends: Optional[torch.Tensor]
     stats: np.ndarray
 
 

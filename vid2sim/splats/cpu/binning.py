@@ -41,6 +41,21 @@ def _n_blocks(n):
     return max(1, (n + BLOCK - 1) // BLOCK)
 
 
+@njit(cache=True)
+def _pow2_shift(tile):
+    """log2(tile) when tile is a power of two, else -1."""
+    for s in range(31):
+        if (1 << s) == tile:
+            return s
+    return -1
+
+
+@njit(cache=True, inline="always")
+def _tdiv(x, tile, shift):
+    """x // tile for x >= 0 (a shift when tile is a power of two: integer division is slow)."""
+    return x >> shift if shift >= 0 else x // tile
+
+
 @njit(parallel=True, cache=True)
 def radix_sort(keys, rows, rects, n_workers=1):
     """Stable ascending sort of uint32 keys [n], carrying int32 rows [n] and uint64 rects [n]:
@@ -107,6 +122,7 @@ def _keys(fo, box, n_rows, tile, want_pos, n_workers):
     rows = np.empty(n, np.int32)
     rects = np.empty(n, np.uint64)
     row_start = np.zeros(n_rows + 1 if want_pos else 0, np.int64)
+    shift = _pow2_shift(tile)
     nxt = new_counter()
     for _h in prange(n_workers):
         z = np.empty(1, np.float32)
@@ -122,8 +138,8 @@ def _keys(fo, box, n_rows, tile, want_pos, n_workers):
                 z[0] = fo[r, F_Z]
                 keys[j] = _float_key(bits[0])
                 rows[j] = r
-                tx0, ty0 = box[r, 0] // tile, box[r, 1] // tile
-                tx1, ty1 = box[r, 2] // tile, box[r, 3] // tile
+                tx0, ty0 = _tdiv(box[r, 0], tile, shift), _tdiv(box[r, 1], tile, shift)
+                tx1, ty1 = _tdiv(box[r, 2], tile, shift), _tdiv(box[r, 3], tile, shift)
                 rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
                             | (np.uint64(ty1) << 48))
                 if want_pos:
@@ -227,14 +243,15 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
     z = np.empty(1, np.float32)
     bits = z.view(np.uint32)
     row_start = np.zeros(n_rows + 1 if want_pos else 0, np.int64)
+    shift = _pow2_shift(tile)
     j = 0
     for r in range(n_rows):
         if box[r, 2] >= box[r, 0]:
             z[0] = fo[r, F_Z]
             keys[j] = _float_key(bits[0])
             rows[j] = r
-            tx0, ty0 = box[r, 0] // tile, box[r, 1] // tile
-            tx1, ty1 = box[r, 2] // tile, box[r, 3] // tile
+            tx0, ty0 = _tdiv(box[r, 0], tile, shift), _tdiv(box[r, 1], tile, shift)
+            tx1, ty1 = _tdiv(box[r, 2], tile, shift), _tdiv(box[r, 3], tile, shift)
             rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
                         | (np.uint64(ty1) << 48))
             if want_pos:

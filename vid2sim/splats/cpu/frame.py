@@ -26,7 +26,7 @@ from ._geom import jac_limits
 from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
 from .preprocess import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
-from .raster import A_MAX, A_MIN, HALF, ONE, S_MAX, T_MIN, ZERO
+from .raster import A_MAX, A_MIN, ALL_BITS, HALF, ONE, S_MAX, T_MIN, ZERO
 from .static_kernels import _static_one, cull_cells
 
 F32 = np.float32
@@ -69,10 +69,10 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
 
 @njit(cache=True)
 def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
-                   rlive, color, alpha, depth, blends_px, contrib):
+                   rdone, color, alpha, depth, blends_px, contrib):
     """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
 
-    T [P], acc [P, 4], cnt [P], live [P], rlive [tile rows] are scratch; writes color
+    T [P], acc [P, 4], cnt [P], live [P], rdone [tile rows] (bit px - x0: stopped) are scratch; writes color
     [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated z) and blends_px
     [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
     blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
@@ -87,7 +87,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
         for c in range(4):
             acc[p, c] = ZERO
     for r in range(y1 - y0):
-        rlive[r] = tw
+        rdone[r] = 0
     cap = blend_cap if blend_cap > 0 else 1 << 30
     want_contrib = contrib.shape[0] > 0
     n_live = npx
@@ -97,13 +97,16 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
         bx1 = min(gb[k, 2] + 1, x1)
         by0 = max(gb[k, 1], y0)
         by1 = min(gb[k, 3] + 1, y1)
+        if bx1 <= bx0:
+            continue
         mx, my, ca, cb, cc = g[0, k], g[1, k], g[2, k], g[3, k], g[4, k]
         o, ct = g[5, k], g[6, k]
         c0, c1, c2, c3 = g[7, k], g[8, k], g[9, k], g[10, k]
         wsum = ZERO
+        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
         for py in range(by0, by1):
-            if rlive[py - y0] == 0:
-                continue  # every pixel of this tile row has stopped
+            if rdone[py - y0] & span == span:
+                continue  # every pixel of this row's span has stopped
             dy = (F32(py) + HALF) - my
             row = (py - y0) * tw - x0
             for px in range(bx0, bx1):
@@ -121,7 +124,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
                 Tn = Tp * (ONE - al)
                 if Tn < T_MIN:
                     live[p] = False
-                    rlive[py - y0] -= 1
+                    rdone[py - y0] |= np.uint64(1) << np.uint64(px - x0)
                     n_live -= 1
                     continue
                 w = al * Tp
@@ -136,7 +139,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
                 blends += 1
                 if cnt[p] >= cap or Tn < t_stop:
                     live[p] = False
-                    rlive[py - y0] -= 1
+                    rdone[py - y0] |= np.uint64(1) << np.uint64(px - x0)
                     n_live -= 1
         if want_contrib and wsum > ZERO:
             contrib[inst[s + k]] += wsum
@@ -170,7 +173,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
     acc = np.empty((npx, 4), np.float32)
     cnt = np.empty(npx, np.int32)
     live = np.empty(npx, np.bool_)
-    rlive = np.empty(tile, np.int64)
+    rdone = np.empty(tile, np.uint64)
     blends = 0
     for t in range(n_tiles):
         s = offsets[t]
@@ -180,7 +183,7 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
         x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
         _gather_tile(fo, box, inst, s, n, g, gb)
         blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
-                                 live, rlive, color, alpha, depth, blends_px, contrib)
+                                 live, rdone, color, alpha, depth, blends_px, contrib)
     return blends
 
 

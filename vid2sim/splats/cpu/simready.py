@@ -11,7 +11,10 @@ walkable map (`robot_cameras`), and `sim_ready` keeps the splats that carry the 
 2. Keep the most significant splats that together carry `keep_mass` of the total measured
    weight; drop the rest (no merging: merged splats changed colours more than dropping the
    least significant ones on the scenes measured).
-3. A per-pixel blend cap is a render-time setting (`SceneBatch.render(blend_cap=...)`).
+3. Optionally (`bake_colour`) replace each kept splat's view-dependent SH colour by its
+   blend-weighted mean colour over the same views (SH degree 0): what the approximate
+   `fastbatch.FastBatch` renders.
+4. A per-pixel blend cap / early stop is a render-time setting (`SceneBatch.render`).
 """
 
 from __future__ import annotations
@@ -24,10 +27,11 @@ import torch
 
 from ..camera import Camera, look_at
 from ..model import GaussianModel
+from ..sh import C0
 from ..types import RasterSettings
 from .frame import NS, render_frame
 from .function import camera_arrays
-from .preprocess import NF
+from .preprocess import F_BL, F_R, NF
 from .raster import kernel_tile
 from .static import StaticScene
 
@@ -41,9 +45,11 @@ ROBOT_CAMERA_HEIGHT_M = 0.6
 @dataclass(frozen=True)
 class SimReadyConfig:
     """keep_mass: fraction of the total measured blend weight the kept splats carry.
-    width/height: resolution the significance is measured at (the env's)."""
+    width/height: resolution the significance is measured at (the env's). bake_colour: the
+    result has SH degree 0 with each splat's blend-weighted mean colour over the views."""
 
     keep_mass: float = 0.995
+    bake_colour: bool = False
     width: int = ENV_WIDTH
     height: int = ENV_HEIGHT
 
@@ -67,6 +73,14 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
                  settings: RasterSettings) -> np.ndarray:
     """Summed blend weight alpha * T of each model splat over all pixels of all cameras:
     [N] float64 in model order (splats the scene dropped at load score 0)."""
+    return significance_colour(scene, cameras, settings)[0]
+
+
+def significance_colour(scene: StaticScene, cameras: Sequence[Camera],
+                        settings: RasterSettings) -> tuple[np.ndarray, np.ndarray]:
+    """(significance [N] as `significance`, blend-weighted mean colour [N, 3] of each splat
+    over the cameras (its SH colour seen from each camera, weighted by its blend weight
+    there; the DC colour where it never blends)), both float64 in model order."""
     if scene.lod is not None:
         raise ValueError("significance: needs an exact (non-LOD) StaticScene")
     W, H = settings.width, settings.height
@@ -78,6 +92,7 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
                             np.empty((H, W), np.int32))
     contrib, stats = np.zeros(G, np.float64), np.zeros(NS, np.float64)
     sig = np.zeros(len(scene.means), np.float64)  # [G] cached-row order
+    col = np.zeros((len(scene.means), 3), np.float64)  # [G, 3] weighted colour sums
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
     deg = min(settings.active_sh_degree, scene.sh_degree)
     bg = np.zeros(3, np.float32)
@@ -90,9 +105,24 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
                          kernel_tile(settings.tile_size), float(settings.near),
                          float(settings.far), cov_alpha, 0, 0.0, bg, sel, fo, box, radii, color, rgb,
                          alpha, depth, blends, contrib, stats)
-        np.add.at(sig, sel[:n], contrib[:n])
-    out = np.zeros(scene.num, np.float64)
-    out[scene.index] = sig[:len(scene.index)]
+        hit = np.nonzero(contrib[:n] > 0.0)[0]  # fo rows of culled splats are not written
+        rows = sel[hit]  # distinct within one camera
+        sig[rows] += contrib[hit]
+        col[rows] += contrib[hit, None] * fo[hit, F_R:F_BL + 1]
+    K = len(scene.index)
+    seen = sig[:K] > 0.0
+    mean_col = scene.rgb[:K].astype(np.float64).copy()
+    mean_col[seen] = col[:K][seen] / sig[:K][seen, None]
+    out, out_col = np.zeros(scene.num, np.float64), np.zeros((scene.num, 3), np.float64)
+    out[scene.index] = sig[:K]
+    out_col[scene.index] = mean_col
+    return out, out_col
+
+
+def bake_colour(model: GaussianModel, rgb: np.ndarray) -> GaussianModel:
+    """Copy of model with SH degree 0 whose DC colour is rgb [N, 3] (C0 * dc + 0.5 = rgb)."""
+    out = model.with_sh_degree(0)
+    out.sh[:, 0] = torch.from_numpy((rgb - 0.5) / C0).to(out.sh.dtype)
     return out
 
 
@@ -114,8 +144,12 @@ def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
               config: SimReadyConfig = SimReadyConfig(),
               settings: RasterSettings | None = None) -> tuple[GaussianModel, np.ndarray]:
     """The splats of `model` that carry keep_mass of the image over `cameras` (robot views
-    at the env resolution), and the significance [N] they were chosen by."""
-    st = settings or RasterSettings(config.width, config.height, active_sh_degree=0)
-    sig = significance(StaticScene(model), cameras, st)
+    at the env resolution; colours baked when config.bake_colour), and the significance [N]
+    they were chosen by."""
+    deg = model.sh_degree if config.bake_colour else 0
+    st = settings or RasterSettings(config.width, config.height, active_sh_degree=deg)
+    sig, col = significance_colour(StaticScene(model), cameras, st)
     keep = keep_by_mass(sig, config.keep_mass)
+    if config.bake_colour:
+        model = bake_colour(model, col)
     return model.index(torch.from_numpy(keep)), sig

@@ -1,0 +1,382 @@
+"""Approximate env frames at RL rates (issue 8): one 128x72 frame in ~2 ms of one core.
+
+NOT exact (the exact env path is `frame.py`); what is traded, each measured as PSNR/SSIM
+against the exact render by benchmarks/env_render.py:
+
+- colour: one RGB per splat, no view-dependent SH (`simready.sim_ready` bakes each splat's
+  blend-weighted mean colour over robot views into the DC term);
+- opaque early stop: a pixel stops once its transmittance T falls below t_stop, and its
+  colour is renormalised acc / (1 - T) with alpha 1 (the remaining splats are assumed to look
+  like the ones blended), which keeps the error far below T x colour;
+- float32 projection from one packed 64-byte record per splat; depth sort on the top 22
+  bits of the float depth (ties below 2^-13 relative depth keep cell order);
+- the per-row pixel span of each splat is solved from its ellipse (no tests outside it),
+  and alpha = o exp(-s) is not clamped below 1/255 inside the ellipse.
+
+Per frame in one thread: cull culling cells (bounding spheres, `static_kernels.sphere_outside`)
+and project only the splats of the cells that survive, straight into a compact list; radix
+sort by depth; bin into small tiles; composite tile by tile front to back (per-pixel and
+per-tile early stop); finish over the background. `render_fast_frames` runs N cameras
+(possibly different packed scenes) over a shared counter, one frame per worker at a time.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit, prange
+
+from ._geom import LOWPASS, jac_limits
+from ._sched import fetch_add, new_counter
+from .static_kernels import frustum_planes, sphere_outside
+
+F32 = np.float32
+# packed splat record [G, NP] float32 (model data, view independent)
+P_X, P_Y, P_Z, P_S00, P_S01, P_S02, P_S11, P_S12, P_S22, P_O, P_R, P_G, P_B, P_CUT = range(14)
+NP = 16
+# projected splat record [R, NQ] float32 (one camera)
+Q_X, Q_Y, Q_A, Q_B, Q_C, Q_O, Q_CUT, Q_R, Q_G, Q_BL, Q_Z, Q_DET = range(12)
+NQ = 12
+A_MAX = F32(0.99)
+EXP_SCALE = 64.0  # exp table samples per unit of s
+S_MAX = 4.5  # the exact renderer's cut-off on s (3 sigma)
+EXP_N = 320  # the exp table covers s <= 5 > S_MAX
+KEY_SHIFT = np.uint32(10)  # depth key: float bits >> 10 (22 bits, two 11-bit radix passes)
+# stats columns per frame: splats in view, tile instances, blends, covered pixels
+NS = 4
+
+
+@njit(cache=True)
+def pack_splats(means, cov, opacity, rgb):
+    """Packed records [G, NP] float32 from means [G, 3], world covariances [G, 6] (xx xy xz
+    yy yz zz), opacities [G] and colours [G, 3]; P_CUT = min(ln(255 o), S_MAX): the largest
+    Gaussian power s = d^T Sigma^-1 d / 2 at which o exp(-s) still reaches 1/255, within the
+    exact renderer's 3-sigma cut-off."""
+    G = means.shape[0]
+    pk = np.zeros((G, NP), np.float32)
+    for i in range(G):
+        for q in range(3):
+            pk[i, P_X + q] = means[i, q]
+            pk[i, P_R + q] = rgb[i, q]
+        for q in range(6):
+            pk[i, P_S00 + q] = cov[i, q]
+        o = opacity[i]
+        pk[i, P_O] = o
+        pk[i, P_CUT] = min(math.log(max(o * 255.0, 1.0)), S_MAX)
+    return pk
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def _project_one(rec, W, tw, fx, fy, cx, cy, lims, width, height, near, far, cov_alpha, q, box,
+                 j):
+    """Project one packed record into q[j], box[j]; returns 1 when it reaches a pixel."""
+    mx, my, mz = rec[P_X], rec[P_Y], rec[P_Z]
+    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+    if not (tz >= near and tz <= far):
+        return 0
+    ct = rec[P_CUT]
+    if ct <= 0.0:
+        return 0
+    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+    iz = F32(1.0) / tz
+    lxp, lxn, lyp, lyn = lims
+    rx = min(max(tx * iz, -lxn), lxp)
+    ry = min(max(ty * iz, -lyn), lyp)
+    j00 = fx * iz
+    j11 = fy * iz
+    j02 = -fx * rx * iz
+    j12 = -fy * ry * iz
+    u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
+    v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
+    s00, s01, s02 = rec[P_S00], rec[P_S01], rec[P_S02]
+    s11, s12, s22 = rec[P_S11], rec[P_S12], rec[P_S22]
+    su0 = s00 * u0 + s01 * u1 + s02 * u2
+    su1 = s01 * u0 + s11 * u1 + s12 * u2
+    su2 = s02 * u0 + s12 * u1 + s22 * u2
+    A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
+    B = v0 * su0 + v1 * su1 + v2 * su2
+    C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
+         + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+    det = A * C - B * B
+    if not det > 0.0:
+        return 0
+    if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
+        return 0
+    px = fx * tx * iz + cx
+    py = fy * ty * iz + cy
+    ex = math.sqrt(2.0 * ct * A)
+    ey = math.sqrt(2.0 * ct * C)
+    j0 = max(math.ceil(px - ex - 0.5), 0)
+    j1 = min(math.floor(px + ex - 0.5), width - 1)
+    i0 = max(math.ceil(py - ey - 0.5), 0)
+    i1 = min(math.floor(py + ey - 0.5), height - 1)
+    if j0 > j1 or i0 > i1:
+        return 0
+    idet = 1.0 / det
+    o = q[j]
+    o[Q_X] = px
+    o[Q_Y] = py
+    o[Q_A] = C * idet
+    o[Q_B] = -B * idet
+    o[Q_C] = A * idet
+    o[Q_O] = rec[P_O]
+    o[Q_CUT] = ct
+    o[Q_R] = rec[P_R]
+    o[Q_G] = rec[P_G]
+    o[Q_BL] = rec[P_B]
+    o[Q_Z] = tz
+    o[Q_DET] = idet  # det of the conic (a c - b^2)
+    box[j, 0] = j0
+    box[j, 1] = i0
+    box[j, 2] = j1
+    box[j, 3] = i1
+    return 1
+
+
+@njit(cache=True)
+def cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height, near,
+                 far, cov_alpha, q, box):
+    """Project the splats of cells c0:c1 that survive the frustum test into compact rows of
+    q [R, NQ] / box [R, 4] (only splats that reach a pixel); returns (rows, splats tested)."""
+    W, tw, planes, grow = frustum_planes(view, cam, width, height)
+    Wf = (F32(W[0]), F32(W[1]), F32(W[2]), F32(W[3]), F32(W[4]), F32(W[5]), F32(W[6]),
+          F32(W[7]), F32(W[8]))
+    twf = (F32(tw[0]), F32(tw[1]), F32(tw[2]))
+    fx, fy, cx, cy = F32(cam[0]), F32(cam[1]), F32(cam[2]), F32(cam[3])
+    lp = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
+    lims = (F32(lp[0]), F32(lp[1]), F32(lp[2]), F32(lp[3]))
+    nearf, farf, cova = F32(near), F32(far), F32(cov_alpha)
+    n = 0
+    tested = 0
+    for c in range(c0, c1):
+        if sphere_outside(centers[c, 0], centers[c, 1], centers[c, 2], r_means[c], rho[c], W,
+                          tw, planes, grow, near, far):
+            continue
+        for i in range(cell_start[c], cell_start[c + 1]):
+            n += _project_one(pk[i], Wf, twf, fx, fy, cx, cy, lims, width, height, nearf, farf,
+                              cova, q, box, n)
+        tested += cell_start[c + 1] - cell_start[c]
+    return n, tested
+
+
+@njit(cache=True)
+def depth_order(q, n, keys, k2, rows, r2):
+    """Row order [n] front to back: two 11-bit LSD radix passes on the depth's float bits
+    >> KEY_SHIFT (depths are positive, so the bits are monotone). Returns the sorted rows."""
+    zb = q[:n, Q_Z].copy().view(np.uint32)
+    for i in range(n):
+        keys[i] = zb[i] >> KEY_SHIFT
+        rows[i] = i
+    count = np.empty(2049, np.int64)
+    src_k, src_r, dst_k, dst_r = keys, rows, k2, r2
+    for shift in (0, 11):
+        sh = np.uint32(shift)
+        count[:] = 0
+        for i in range(n):
+            count[((src_k[i] >> sh) & np.uint32(2047)) + 1] += 1
+        for d in range(2048):
+            count[d + 1] += count[d]
+        for i in range(n):
+            d = (src_k[i] >> sh) & np.uint32(2047)
+            j = count[d]
+            dst_k[j] = src_k[i]
+            dst_r[j] = src_r[i]
+            count[d] = j + 1
+        src_k, dst_k = dst_k, src_k
+        src_r, dst_r = dst_r, src_r
+    return src_r
+
+
+@njit(cache=True)
+def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
+    """Copy rows into depth order (qs [n, NQ], bs [n, 4]: the composite then reads them
+    nearly sequentially) and list each tile's sorted rows (tiles of 2^shift px): offsets
+    [T+1], inst [M] (grown when short: the returned array)."""
+    offsets[:] = 0
+    for k in range(n):
+        r = order[k]
+        for c in range(NQ):
+            qs[k, c] = q[r, c]
+        j0, i0, j1, i1 = box[r, 0], box[r, 1], box[r, 2], box[r, 3]
+        bs[k, 0] = j0
+        bs[k, 1] = i0
+        bs[k, 2] = j1
+        bs[k, 3] = i1
+        for ty in range(i0 >> shift, (i1 >> shift) + 1):
+            for tx in range(j0 >> shift, (j1 >> shift) + 1):
+                offsets[ty * tiles_x + tx + 1] += 1
+    for t in range(n_tiles):
+        offsets[t + 1] += offsets[t]
+    if inst.shape[0] < offsets[n_tiles]:
+        inst = np.empty(2 * offsets[n_tiles], np.int32)
+    fill = offsets[:n_tiles].copy()
+    for k in range(n):
+        for ty in range(bs[k, 1] >> shift, (bs[k, 3] >> shift) + 1):
+            for tx in range(bs[k, 0] >> shift, (bs[k, 2] >> shift) + 1):
+                t = ty * tiles_x + tx
+                inst[fill[t]] = k
+                fill[t] += 1
+    return inst
+
+
+@njit(cache=True)
+def exp_table():
+    """EXP_N + 2 samples of exp(-s) at s = i / EXP_SCALE (linear interpolation in between:
+    relative error < 3e-5)."""
+    return np.exp(-np.arange(EXP_N + 2) / EXP_SCALE).astype(np.float32)
+
+
+@njit(cache=True, fastmath=True)
+def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc, rlive,
+                   color, alpha, depth):
+    """Blend tile t0's rows inst[offsets[t0]:offsets[t0+1]] (depth order) into the tile's
+    pixels; writes color [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated
+    z). A pixel whose T fell below t_stop is skipped and renormalised at the end. ex: the
+    exp_table. Scratch T [P], acc [P, 4], rlive [tile rows]. Returns the number of blends."""
+    tw = x1 - x0
+    npx = tw * (y1 - y0)
+    for p in range(npx):
+        T[p] = 1.0
+        for c in range(4):
+            acc[p, c] = 0.0
+    for r in range(y1 - y0):
+        rlive[r] = tw
+    n_live = npx
+    blends = 0
+    scale = F32(EXP_SCALE)
+    for k in range(offsets[t0], offsets[t0 + 1]):
+        v = inst[k]
+        mx, my, ca, cb, cc = q[v, Q_X], q[v, Q_Y], q[v, Q_A], q[v, Q_B], q[v, Q_C]
+        o, ct = q[v, Q_O], q[v, Q_CUT]
+        c0, c1, c2, c3 = q[v, Q_R], q[v, Q_G], q[v, Q_BL], q[v, Q_Z]
+        bx0 = max(box[v, 0], x0)
+        bx1 = min(box[v, 2] + 1, x1)
+        by0 = max(box[v, 1], y0)
+        by1 = min(box[v, 3] + 1, y1)
+        hca = F32(0.5) * ca
+        for py in range(by0, by1):
+            ry = py - y0
+            if rlive[ry] == 0:
+                continue
+            dy = F32(py) + F32(0.5) - my
+            bdy = cb * dy
+            hcdy = F32(0.5) * cc * dy * dy
+            row = ry * tw - x0
+            for px in range(bx0, bx1):
+                p = row + px
+                Tp = T[p]
+                if Tp < t_stop:
+                    continue
+                dx = F32(px) + F32(0.5) - mx
+                s = dx * (hca * dx + bdy) + hcdy
+                if s > ct:
+                    continue
+                u = s * scale
+                i = int(u)
+                e0 = ex[i]
+                al = min(A_MAX, o * (e0 + (u - F32(i)) * (ex[i + 1] - e0)))
+                w = al * Tp
+                acc[p, 0] += w * c0
+                acc[p, 1] += w * c1
+                acc[p, 2] += w * c2
+                acc[p, 3] += w * c3
+                Tn = Tp - w
+                T[p] = Tn
+                blends += 1
+                if Tn < t_stop:
+                    rlive[ry] -= 1
+                    n_live -= 1
+        if n_live == 0:
+            break
+    for py in range(y0, y1):
+        for px in range(x0, x1):
+            p = (py - y0) * tw + px - x0
+            Tp = T[p]
+            f = F32(1.0) / (F32(1.0) - Tp) if Tp < t_stop else F32(1.0)  # opaque stop
+            color[py, px, 0] = acc[p, 0] * f
+            color[py, px, 1] = acc[p, 1] * f
+            color[py, px, 2] = acc[p, 2] * f
+            depth[py, px] = acc[p, 3] * f
+            alpha[py, px] = F32(1.0) if Tp < t_stop else F32(1.0) - Tp
+    return blends
+
+
+@njit(cache=True)
+def finish_fast(color, alpha, depth_acc, bg, rgb, depth):
+    """rgb = color + (1 - alpha) bg; depth = depth_acc / alpha (0 where alpha == 0)."""
+    H, W = alpha.shape
+    for i in range(H):
+        for j in range(W):
+            a = alpha[i, j]
+            for c in range(3):
+                rgb[i, j, c] = color[i, j, c] + (F32(1.0) - a) * bg[c]
+            depth[i, j] = depth_acc[i, j] / max(a, F32(1e-6)) if a > 0.0 else F32(0.0)
+
+
+@njit(cache=True)
+def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
+                      shift, near, far, cov_alpha, t_stop, bg, q, box, qs, bs, keys, rows, inst,
+                      color, out_rgb, out_alpha, out_depth, stats):
+    """Every phase of one camera in this thread (cells c0:c1 of the packed scene pk).
+    Tiles are 2^shift px. Scratch: q / qs [G, NQ], box / bs [G, 4], keys / rows [2, G], inst [M] (grown when short: the
+    returned array), color [H, W, 3]; outputs out_rgb [H, W, 3], out_alpha / out_depth [H, W],
+    stats [NS]."""
+    n, _ = cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width,
+                        height, near, far, cov_alpha, q, box)
+    order = depth_order(q, n, keys[0], keys[1], rows[0], rows[1])
+    tile = 1 << shift
+    tiles_x = (width + tile - 1) >> shift
+    n_tiles = tiles_x * ((height + tile - 1) >> shift)
+    offsets = np.empty(n_tiles + 1, np.int64)
+    inst = sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst)
+    npx = tile * tile
+    T = np.empty(npx, np.float32)
+    acc = np.empty((npx, 4), np.float32)
+    rlive = np.empty(tile, np.int64)
+    ex = exp_table()
+    blends = 0
+    for ty in range(n_tiles // tiles_x):
+        for tx in range(tiles_x):
+            x0, y0 = tx << shift, ty << shift
+            x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
+            blends += composite_fast(qs, bs, offsets, inst, ty * tiles_x + tx, x0, y0, x1, y1,
+                                     F32(t_stop), ex, T, acc, rlive, color, out_alpha,
+                                     out_depth)
+    finish_fast(color, out_alpha, out_depth, bg, out_rgb, out_depth)
+    covered = 0
+    for i in range(height):
+        for j in range(width):
+            if out_alpha[i, j] > 0.0:
+                covered += 1
+    stats[0] = n
+    stats[1] = offsets[n_tiles]
+    stats[2] = blends
+    stats[3] = covered
+    return inst
+
+
+@njit(parallel=True, cache=True)
+def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk, views, cams,
+                       width, height, shift, near, far, cov_alpha, t_stop, bg, q, box, keys, rows,
+                       color, out_rgb, out_alpha, out_depth, stats, n_workers):
+    """Render cameras i < len(scene_of) (camera i sees packed scene scene_of[i]: cells
+    cell_lo[s]:cell_lo[s+1]); n_workers draw whole frames from a shared counter. Scratch
+    per worker: q [n_workers, 2, G, NQ], box [n_workers, 2, G, 4], keys / rows [n_workers, 2, G],
+    color [n_workers, H, W, 3]; outputs [N, H, W(, 3)], stats [N, NS]."""
+    n_cams = scene_of.shape[0]
+    nxt = new_counter()
+    for h in prange(n_workers):
+        inst = np.empty(4 * q.shape[1] + 1024, np.int32)
+        while True:
+            i = fetch_add(nxt, 1)
+            if i >= n_cams:
+                break
+            s = scene_of[i]
+            inst = render_fast_frame(cell_lo[s], cell_lo[s + 1], centers, r_means, rho,
+                                     cell_start, pk, views[i], cams[i], width, height, shift,
+                                     near, far, cov_alpha, t_stop, bg, q[h, 0], box[h, 0], q[h, 1],
+                                     box[h, 1], keys[h],
+                                     rows[h], inst, color[h], out_rgb[i], out_alpha[i],
+                                     out_depth[i], stats[i])
