@@ -35,8 +35,11 @@ from env_scenes import build  # noqa: E402
 from vid2sim.factory.recon.losses import ssim_map  # noqa: E402
 from vid2sim.formats.walkable import WalkableGrid, load_walkable  # noqa: E402
 from vid2sim.splats import RasterSettings, read_ply  # noqa: E402
-from vid2sim.splats.cpu import StaticScene  # noqa: E402
+from vid2sim.splats.cpu import StaticScene, StaticSceneConfig  # noqa: E402
 from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
+from vid2sim.splats.cpu.fastbatch import TILE_SHIFT, FastBatch  # noqa: E402
+from vid2sim.splats.cpu.fastframe import (NQ, composite_fast, cull_project, depth_order,  # noqa: E402
+                                          exp_table, sort_bin)
 from vid2sim.splats.cpu.binning import _sort_and_bin_serial  # noqa: E402
 from vid2sim.splats.cpu.frame import composite_frame, project_serial  # noqa: E402
 from vid2sim.splats.cpu.function import camera_arrays  # noqa: E402
@@ -117,7 +120,7 @@ def phases(scene: StaticScene, cams: list, st: RasterSettings, cap: int, tile: i
     alpha, depth, bl = np.empty((H, W), np.float32), np.empty((H, W), np.float32), np.empty((H, W), np.int32)
     tx = (W + tile - 1) // tile
     nt = tx * ((H + tile - 1) // tile)
-    t = dict(cull=0.0, project=0.0, sort_bin=0.0, composite=0.0)
+    t = {"cull": 0.0, "project": 0.0, "sort/bin": 0.0, "composite": 0.0}
     in_view, blends, covered = 0, 0, 0
     deg = min(st.active_sh_degree, scene.sh_degree)
     for cam in cams:
@@ -146,9 +149,9 @@ def phases(scene: StaticScene, cams: list, st: RasterSettings, cap: int, tile: i
 
 
 def print_phases(label: str, p: dict) -> None:
-    print(f"    {label}: cull {p['cull']:.2f} ms, project {p['project']:.2f}, sort/bin "
-          f"{p['sort_bin']:.2f}, composite {p['composite']:.2f}; splats in view "
-          f"{p['in_view']:,.0f}; blended splats per covered pixel {p['blends_px']:.1f}")
+    split = ", ".join(f"{k} {v:.2f}" for k, v in p.items() if k not in ("in_view", "blends_px"))
+    print(f"    {label} CPU ms per frame: {split}; splats in view {p['in_view']:,.0f}; "
+          f"blended splats per covered pixel {p['blends_px']:.1f}")
 
 
 def load_scene(name: str, args: argparse.Namespace) -> tuple | None:
@@ -183,47 +186,92 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
           f"poses, 0.6 m, 128x72, 60 deg vertical fov")
     full = StaticScene(model)
     exact = [full.render(c, st).rgb for c in cams]
-    fps_line("before: StaticScene.render, exact", lambda: [full.render(c, st) for c in cams],
+    print("  exact (frames/s; per CPU-s = per core):")
+    fps_line("before: StaticScene.render", lambda: [full.render(c, st) for c in cams],
              len(cams), args.reps)
     batch = SceneBatch([full])
-    fps_line("frame kernel, 1 camera per call, exact", lambda: [batch.render([c], settings=st)
-                                                                for c in cams], len(cams), args.reps)
-    before = fps_line("frame kernel, 8 cameras per call, exact",
-                      lambda: [batch.render(cams[i:i + 8], settings=st) for i in range(0, len(cams), 8)],
-                      len(cams), args.reps)
+    fps_line("frame kernel, 8 separate calls of 1 camera", lambda: [batch.render([c], settings=st)
+                                                                   for c in cams], len(cams), args.reps)
+    fps_line("frame kernel, 8 cameras per call", lambda: [batch.render(cams[i:i + 8], settings=st)
+                                                          for i in range(0, len(cams), 8)],
+             len(cams), args.reps)
     phases(full, cams[:1], st, 0, 16)  # compile the serial kernels outside the timing
     print_phases("exact", phases(full, cams, st, 0, 16))
-    variants = [("full", full)]
     for mass in args.keep_mass:
         t0 = time.perf_counter()
-        small, _ = sim_ready(model, train, SimReadyConfig(keep_mass=mass), st)
-        print(f"  sim-ready keep_mass {mass}: {small.num:,} splats "
-              f"({small.num / model.num:.0%}), made in {time.perf_counter() - t0:.1f} s")
-        variants.append((f"sim-ready {mass}", StaticScene(small)))
-    for label, scene in variants:
-        b = SceneBatch([scene])
-        for deg in sorted({0, model.sh_degree}, reverse=True):
-            for ts in args.t_stop:
-                for cap in args.caps:
-                    if label == "full" and (deg, ts, cap) == (model.sh_degree, 0.0, 0):
-                        continue  # the exact render itself
-                    approx_line(f"{label}, SH{deg}, t_stop {ts}, cap {cap or 'off'}", b, cams,
-                                RasterSettings(W, H, active_sh_degree=deg), ts, cap, exact,
-                                before, args.reps)
-        if label != "full":
-            print_phases(label, phases(scene, cams, st, 0, 16))
+        small, _ = sim_ready(model, train, SimReadyConfig(keep_mass=mass, bake_colour=True), st)
+        print(f"  sim-ready keep_mass {mass} (colours baked, SH 0): {small.num:,} splats "
+              f"({small.num / model.num:.0%}), made in {time.perf_counter() - t0:.1f} s from "
+              f"{len(train)} other robot views")
+        scene = StaticScene(small, StaticSceneConfig(cell_size=args.cell_size))
+        fb = FastBatch([scene])
+        for ts in args.t_stop:
+            fast_lines(f"fast, keep_mass {mass}, t_stop {ts}", fb, scene, cams, ts, exact,
+                       args.reps)
 
 
-def approx_line(tag: str, b: SceneBatch, cams: list, st: RasterSettings, ts: float, cap: int,
-                exact: list, before: float, reps: int) -> None:
-    """frames/s (8 cameras per call) and PSNR/SSIM vs exact of one approximation."""
-    imgs = b.render(cams, settings=st, blend_cap=cap, t_stop=ts).rgb
+def fast_lines(tag: str, fb: FastBatch, scene: StaticScene, cams: list, ts: float,
+               exact: list, reps: int) -> None:
+    """PSNR/SSIM vs exact, frames/s (8 cameras per call and 8 separate calls) and the
+    per-phase split of one approximate (FastBatch) setting."""
+    st0 = RasterSettings(W, H, active_sh_degree=0)
+    imgs = fb.render(cams, settings=st0, t_stop=ts).rgb
     q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
-    fps = fps_line(tag, lambda: [b.render(cams[i:i + 8], settings=st, blend_cap=cap, t_stop=ts)
-                                 for i in range(0, len(cams), 8)], len(cams), reps)
-    print(f"    PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
-          f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f}; "
-          f"x{fps / before:.2f} per CPU-s vs exact 8/call")
+    print(f"  {tag}: PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
+          f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f} / min "
+          f"{min(v for _, v in q):.4f}")
+    fps_line("8 separate calls of 1 camera", lambda: [fb.render([c], settings=st0, t_stop=ts)
+                                                      for c in cams], len(cams), reps)
+    fps_line("8 cameras per call", lambda: [fb.render(cams[i:i + 8], settings=st0, t_stop=ts)
+                                            for i in range(0, len(cams), 8)], len(cams), reps)
+    print_phases("fast", fast_phases(fb, scene, cams, ts))
+
+
+def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float) -> dict:
+    """Per-phase CPU ms per frame of the fast kernels (cull+project, sort+bin, composite)."""
+    G = max(len(scene.means), 1)
+    q, box = np.empty((2, G, NQ), np.float32), np.empty((2, G, 4), np.int32)
+    keys, rows = np.empty((2, G), np.uint32), np.empty((2, G), np.int32)
+    inst = np.empty(4 * G, np.int32)
+    color = np.empty((H, W, 3), np.float32)
+    alpha, depth = np.empty((H, W), np.float32), np.empty((H, W), np.float32)
+    shift = TILE_SHIFT
+    tile = 1 << shift
+    tx, ty = (W + tile - 1) >> shift, (H + tile - 1) >> shift
+    T, acc = np.empty(tile * tile, np.float32), np.empty((tile * tile, 4), np.float32)
+    rdone, ex = np.empty(tile, np.uint64), exp_table()
+    t = {"cull+project": 0.0, "sort/bin": 0.0, "composite": 0.0}
+    st = RasterSettings(W, H)
+    in_view, blends, covered = 0, 0, 0
+    for rep in range(2):  # the first pass compiles and warms up
+        for cam in cams:
+            view, _, k = camera_arrays(cam)
+            t0 = time.process_time()
+            n, _ = cull_project(0, len(scene.centers), scene.centers, scene.r_means, scene.rho,
+                                scene.cell_start, fb.packed, view, k, W, H, st.near, st.far, -1.0,
+                                q[0], box[0])
+            t1 = time.process_time()
+            order = depth_order(q[0], n, keys[0], keys[1], rows[0], rows[1])
+            off = np.empty(tx * ty + 1, np.int64)
+            inst = sort_bin(q[0], box[0], n, order, q[1], box[1], shift, tx, tx * ty, off, inst)
+            t2 = time.process_time()
+            b = 0
+            for i in range(tx * ty):
+                x0, y0 = (i % tx) * tile, (i // tx) * tile
+                b += composite_fast(q[1], box[1], off, inst, i, x0, y0, min(x0 + tile, W),
+                                    min(y0 + tile, H), np.float32(max(ts, 1e-4)), ex, T, acc,
+                                    rdone, color, alpha, depth)
+            t3 = time.process_time()
+            if rep:
+                for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2)):
+                    t[key] += dt
+                in_view += n
+                blends += b
+                covered += int((alpha > 0).sum())
+    f = len(cams)
+    out = {k: 1e3 * v / f for k, v in t.items()}
+    out.update(in_view=in_view / f, blends_px=blends / max(covered, 1))
+    return out
 
 
 def main() -> None:
@@ -231,9 +279,9 @@ def main() -> None:
     ap.add_argument("--scenes", nargs="+", default=["demo", "gopro"])
     ap.add_argument("--poses", type=int, default=16)
     ap.add_argument("--reps", type=int, default=3)
-    ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.995])
-    ap.add_argument("--caps", type=int, nargs="+", default=[0])
-    ap.add_argument("--t-stop", type=float, nargs="+", default=[0.0, 0.01])
+    ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.995, 0.98])
+    ap.add_argument("--t-stop", type=float, nargs="+", default=[0.01, 0.03])
+    ap.add_argument("--cell-size", type=int, default=64, help="culling cell of the fast path")
     ap.add_argument("--synthetic-splats", type=int, default=75_000)
     args = ap.parse_args()
     print(f"# env render benchmark\ncommand: {' '.join([sys.executable] + sys.argv)}")

@@ -125,7 +125,7 @@ def conic_vjp(A, B, C, ga, gb, gc):
     return g00, g01, g11
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def pixel_box(mx, my, cut, A, C, width, height, box, row):
     """Write into box[row] the inclusive pixel box (j0, i0, j1, i1) of centres inside the
     cut-off ellipse of a splat at (mx, my) with covariance diagonal (A, C); box is left

@@ -28,19 +28,38 @@ def sh_basis(x, y, z):
             C35 * z * (xx - yy), C36 * x * (xx - 3.0 * yy))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
+def _acc(r, g, b, v, shrow, k):
+    return r + v * shrow[k, 0], g + v * shrow[k, 1], b + v * shrow[k, 2]
+
+
+@njit(cache=True, inline="always")
 def sh_color(deg, shrow, x, y, z):
-    """Raw colour SH(d) + 0.5 per channel (callers clamp at 0); shrow [K, 3]."""
+    """Raw colour SH(d) + 0.5 per channel (callers clamp at 0); shrow [K, 3]. Same terms,
+    same order as summing sh_basis(x, y, z)[k] * shrow[k] for k = 0 .. (deg+1)^2 - 1,
+    unrolled per band (no basis tuple indexed at run time)."""
     r = C0 * shrow[0, 0]
     g = C0 * shrow[0, 1]
     b = C0 * shrow[0, 2]
     if deg >= 1:
-        bs = sh_basis(x, y, z)
-        for k in range(1, (deg + 1) * (deg + 1)):
-            v = bs[k]
-            r += v * shrow[k, 0]
-            g += v * shrow[k, 1]
-            b += v * shrow[k, 2]
+        r, g, b = _acc(r, g, b, -C1 * y, shrow, 1)
+        r, g, b = _acc(r, g, b, C1 * z, shrow, 2)
+        r, g, b = _acc(r, g, b, -C1 * x, shrow, 3)
+    if deg >= 2:
+        xx, yy, zz, xy, yz, xz = x * x, y * y, z * z, x * y, y * z, x * z
+        r, g, b = _acc(r, g, b, C20 * xy, shrow, 4)
+        r, g, b = _acc(r, g, b, C21 * yz, shrow, 5)
+        r, g, b = _acc(r, g, b, C22 * (2.0 * zz - xx - yy), shrow, 6)
+        r, g, b = _acc(r, g, b, C23 * xz, shrow, 7)
+        r, g, b = _acc(r, g, b, C24 * (xx - yy), shrow, 8)
+        if deg >= 3:
+            r, g, b = _acc(r, g, b, C30 * y * (3.0 * xx - yy), shrow, 9)
+            r, g, b = _acc(r, g, b, C31 * xy * z, shrow, 10)
+            r, g, b = _acc(r, g, b, C32 * y * (4.0 * zz - xx - yy), shrow, 11)
+            r, g, b = _acc(r, g, b, C33 * z * (2.0 * zz - 3.0 * xx - 3.0 * yy), shrow, 12)
+            r, g, b = _acc(r, g, b, C34 * x * (4.0 * zz - xx - yy), shrow, 13)
+            r, g, b = _acc(r, g, b, C35 * z * (xx - yy), shrow, 14)
+            r, g, b = _acc(r, g, b, C36 * x * (xx - 3.0 * yy), shrow, 15)
     return r + 0.5, g + 0.5, b + 0.5
 
 

@@ -65,6 +65,8 @@ class FastBatch:
         settings' size (SH degree ignored: one colour per splat). A pixel stops once its
         transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py).
         `blends` is None (only the per-frame total in stats)."""
+        if not 0 <= tile_shift <= 6:
+            raise ValueError("FastBatch.render: tiles are 1 to 64 px (tile_shift 0 to 6)")
         c0 = cameras[0]
         st = settings or RasterSettings(c0.width, c0.height)
         W, H, N = st.width, st.height, len(cameras)

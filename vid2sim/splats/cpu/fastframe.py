@@ -39,6 +39,7 @@ NP = 16
 Q_X, Q_Y, Q_A, Q_B, Q_C, Q_O, Q_CUT, Q_R, Q_G, Q_BL, Q_Z, Q_DET = range(12)
 NQ = 12
 A_MAX = F32(0.99)
+ALL_BITS = np.uint64(0xFFFFFFFFFFFFFFFF)
 EXP_SCALE = 64.0  # exp table samples per unit of s
 S_MAX = 4.5  # the exact renderer's cut-off on s (3 sigma)
 EXP_N = 320  # the exp table covers s <= 5 > S_MAX
@@ -194,18 +195,16 @@ def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
     """Copy rows into depth order (qs [n, NQ], bs [n, 4]: the composite then reads them
     nearly sequentially) and list each tile's sorted rows (tiles of 2^shift px): offsets
     [T+1], inst [M] (grown when short: the returned array)."""
-    offsets[:] = 0
-    for k in range(n):
+    for k in range(n):  # gather alone: independent loads overlap
         r = order[k]
         for c in range(NQ):
             qs[k, c] = q[r, c]
-        j0, i0, j1, i1 = box[r, 0], box[r, 1], box[r, 2], box[r, 3]
-        bs[k, 0] = j0
-        bs[k, 1] = i0
-        bs[k, 2] = j1
-        bs[k, 3] = i1
-        for ty in range(i0 >> shift, (i1 >> shift) + 1):
-            for tx in range(j0 >> shift, (j1 >> shift) + 1):
+        for c in range(4):
+            bs[k, c] = box[r, c]
+    offsets[:] = 0
+    for k in range(n):
+        for ty in range(bs[k, 1] >> shift, (bs[k, 3] >> shift) + 1):
+            for tx in range(bs[k, 0] >> shift, (bs[k, 2] >> shift) + 1):
                 offsets[ty * tiles_x + tx + 1] += 1
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
@@ -229,12 +228,13 @@ def exp_table():
 
 
 @njit(cache=True, fastmath=True)
-def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc, rlive,
+def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc, rdone,
                    color, alpha, depth):
     """Blend tile t0's rows inst[offsets[t0]:offsets[t0+1]] (depth order) into the tile's
     pixels; writes color [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated
     z). A pixel whose T fell below t_stop is skipped and renormalised at the end. ex: the
-    exp_table. Scratch T [P], acc [P, 4], rlive [tile rows]. Returns the number of blends."""
+    exp_table. Scratch T [P], acc [P, 4], rdone [tile rows] (bit px - x0: stopped); tiles are
+    at most 64 px wide. Returns the number of blends."""
     tw = x1 - x0
     npx = tw * (y1 - y0)
     for p in range(npx):
@@ -242,7 +242,7 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc
         for c in range(4):
             acc[p, c] = 0.0
     for r in range(y1 - y0):
-        rlive[r] = tw
+        rdone[r] = 0
     n_live = npx
     blends = 0
     scale = F32(EXP_SCALE)
@@ -255,11 +255,14 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc
         bx1 = min(box[v, 2] + 1, x1)
         by0 = max(box[v, 1], y0)
         by1 = min(box[v, 3] + 1, y1)
+        if bx1 <= bx0:
+            continue
         hca = F32(0.5) * ca
+        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
         for py in range(by0, by1):
             ry = py - y0
-            if rlive[ry] == 0:
-                continue
+            if rdone[ry] & span == span:
+                continue  # every pixel of this row's span has stopped
             dy = F32(py) + F32(0.5) - my
             bdy = cb * dy
             hcdy = F32(0.5) * cc * dy * dy
@@ -286,7 +289,7 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc
                 T[p] = Tn
                 blends += 1
                 if Tn < t_stop:
-                    rlive[ry] -= 1
+                    rdone[ry] |= np.uint64(1) << np.uint64(px - x0)
                     n_live -= 1
         if n_live == 0:
             break
@@ -334,7 +337,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
     npx = tile * tile
     T = np.empty(npx, np.float32)
     acc = np.empty((npx, 4), np.float32)
-    rlive = np.empty(tile, np.int64)
+    rdone = np.empty(tile, np.uint64)
     ex = exp_table()
     blends = 0
     for ty in range(n_tiles // tiles_x):
@@ -342,7 +345,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
             x0, y0 = tx << shift, ty << shift
             x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
             blends += composite_fast(qs, bs, offsets, inst, ty * tiles_x + tx, x0, y0, x1, y1,
-                                     F32(t_stop), ex, T, acc, rlive, color, out_alpha,
+                                     F32(t_stop), ex, T, acc, rdone, color, out_alpha,
                                      out_depth)
     finish_fast(color, out_alpha, out_depth, bg, out_rgb, out_depth)
     covered = 0

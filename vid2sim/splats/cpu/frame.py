@@ -38,12 +38,13 @@ NS = 4
 @njit(cache=True)
 def project_serial(sel, n, means, cov, opacity, cut, normal_w, rgb, sh, deg, view, campos, cam,
                    width, height, near, far, cov_alpha, fo, box, radii):
-    """project_static in one thread: rows r < n of fo [R, NF], box [R, 4], radii [R]."""
+    """project_static in one thread, without normals (env frames do not composite them):
+    rows r < n of fo [R, NF], box [R, 4], radii [R]."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     for r in range(n):
         _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos,
-                    cam, lims, width, height, near, far, cov_alpha, fo, box, radii)
+                    cam, lims, width, height, near, far, cov_alpha, fo, box, radii, False)
 
 
 @njit(cache=True)

@@ -74,8 +74,8 @@ def _set_empty(box, r):
 
 @njit(cache=True, inline="always")
 def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos, cam,
-                lims, width, height, near, far, cov_alpha, fo, box, radii):
-    """project_static for row r."""
+                lims, width, height, near, far, cov_alpha, fo, box, radii, normals=True):
+    """project_static for row r (normals=False leaves fo's normal columns unwritten)."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lxp, lxn, lyp, lyn = lims
     i = sel[r]
@@ -140,6 +140,8 @@ def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
         fo[r, F_R] = max(cr, 0.0)
         fo[r, F_G] = max(cg, 0.0)
         fo[r, F_BL] = max(cb, 0.0)
+    if not normals:
+        return
     nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
     cnx = W[0] * nx + W[1] * ny + W[2] * nz
     cny = W[3] * nx + W[4] * ny + W[5] * nz
