@@ -206,28 +206,30 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
         scene = StaticScene(small, StaticSceneConfig(cell_size=args.cell_size))
         fb = FastBatch([scene])
         for ts in args.t_stop:
-            fast_lines(f"fast, keep_mass {mass}, t_stop {ts}", fb, scene, cams, ts, exact,
-                       args.reps)
+            for fill in args.fill_alpha:
+                fast_lines(f"fast, keep_mass {mass}, t_stop {ts}, fill_alpha {fill}", fb, scene,
+                           cams, ts, fill, exact, args.reps)
 
 
 def fast_lines(tag: str, fb: FastBatch, scene: StaticScene, cams: list, ts: float,
-               exact: list, reps: int) -> None:
+               fill: float, exact: list, reps: int) -> None:
     """PSNR/SSIM vs exact, frames/s (8 cameras per call and 8 separate calls) and the
     per-phase split of one approximate (FastBatch) setting."""
     st0 = RasterSettings(W, H, active_sh_degree=0)
-    imgs = fb.render(cams, settings=st0, t_stop=ts).rgb
+    kw = dict(settings=st0, t_stop=ts, fill_alpha=fill)
+    imgs = fb.render(cams, **kw).rgb
     q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
     print(f"  {tag}: PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
           f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f} / min "
           f"{min(v for _, v in q):.4f}")
-    fps_line("8 separate calls of 1 camera", lambda: [fb.render([c], settings=st0, t_stop=ts)
-                                                      for c in cams], len(cams), reps)
-    fps_line("8 cameras per call", lambda: [fb.render(cams[i:i + 8], settings=st0, t_stop=ts)
+    fps_line("8 separate calls of 1 camera", lambda: [fb.render([c], **kw) for c in cams],
+             len(cams), reps)
+    fps_line("8 cameras per call", lambda: [fb.render(cams[i:i + 8], **kw)
                                             for i in range(0, len(cams), 8)], len(cams), reps)
-    print_phases("fast", fast_phases(fb, scene, cams, ts))
+    print_phases("fast", fast_phases(fb, scene, cams, ts, fill))
 
 
-def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float) -> dict:
+def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: float) -> dict:
     """Per-phase CPU ms per frame of the fast kernels (cull+project, sort+bin, composite)."""
     G = max(len(scene.means), 1)
     q, box = np.empty((2, G, NQ), np.float32), np.empty((2, G, 4), np.int32)
@@ -259,7 +261,8 @@ def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float) -> dic
             for i in range(tx * ty):
                 x0, y0 = (i % tx) * tile, (i // tx) * tile
                 b += composite_fast(q[1], box[1], off, inst, i, x0, y0, min(x0 + tile, W),
-                                    min(y0 + tile, H), np.float32(max(ts, 1e-4)), ex, T, acc,
+                                    min(y0 + tile, H), np.float32(max(ts, 1e-4)),
+                                    np.float32(max(ts, 1e-4, 1.0 - fill)), ex, T, acc,
                                     rdone, color, alpha, depth)
             t3 = time.process_time()
             if rep:
@@ -281,6 +284,8 @@ def main() -> None:
     ap.add_argument("--reps", type=int, default=3)
     ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.995, 0.98])
     ap.add_argument("--t-stop", type=float, nargs="+", default=[0.01, 0.03])
+    ap.add_argument("--fill-alpha", type=float, nargs="+", default=[1.0],
+                    help="fast path: pixels with alpha >= this read as opaque (1.0: off)")
     ap.add_argument("--cell-size", type=int, default=64, help="culling cell of the fast path")
     ap.add_argument("--synthetic-splats", type=int, default=75_000)
     args = ap.parse_args()

@@ -59,11 +59,12 @@ class FastBatch:
 
     def render(self, cameras: Sequence[Camera], scene_ids: Optional[Sequence[int]] = None,
                settings: Optional[RasterSettings] = None,
-               background: Sequence[float] = (0.0, 0.0, 0.0), t_stop: float = T_STOP,
+               background: Sequence[float] = (0.0, 0.0, 0.0), t_stop: float = T_STOP, fill_alpha: float = 1.0,
                tile_shift: int = TILE_SHIFT, n_workers: Optional[int] = None) -> EnvFrames:
         """Render camera i of scene scene_ids[i] (default all 0), every camera of the
         settings' size (SH degree ignored: one colour per splat). A pixel stops once its
-        transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py).
+        transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py), as is
+        every pixel whose alpha reaches fill_alpha (1.0: only the stopped ones).
         `blends` is None (only the per-frame total in stats)."""
         if not 0 <= tile_shift <= 6:
             raise ValueError("FastBatch.render: tiles are 1 to 64 px (tile_shift 0 to 6)")
@@ -85,9 +86,11 @@ class FastBatch:
         alpha, depth = np.empty((N, H, W), np.float32), np.empty((N, H, W), np.float32)
         stats = np.zeros((N, NS), np.float64)
         cov_alpha = -1.0 if st.cov_cull_alpha is None else float(st.cov_cull_alpha)
+        ts = max(float(t_stop), 1e-4)
+        t_fill = max(ts, 1.0 - float(fill_alpha))
         render_fast_frames(ids, self.cell_lo, self.centers, self.r_means, self.rho,
                            self.cell_start, self.packed, views, cams, W, H, int(tile_shift),
-                           float(st.near), float(st.far), cov_alpha, max(float(t_stop), 1e-4),
+                           float(st.near), float(st.far), cov_alpha, ts, t_fill,
                            np.asarray(background, np.float32).reshape(3), q, box, keys, rows,
                            color, rgb, alpha, depth, stats, workers)
         t = torch.from_numpy

@@ -7,7 +7,9 @@ against the exact render by benchmarks/env_render.py:
   blend-weighted mean colour over robot views into the DC term);
 - opaque early stop: a pixel stops once its transmittance T falls below t_stop, and its
   colour is renormalised acc / (1 - T) with alpha 1 (the remaining splats are assumed to look
-  like the ones blended), which keeps the error far below T x colour;
+  like the ones blended), which keeps the error far below T x colour; optionally every pixel
+  with T < t_fill (alpha above 1 - t_fill) is renormalised too (fills the pinholes pruning
+  leaves in surfaces);
 - float32 projection from one packed 64-byte record per splat; depth sort on the top 22
   bits of the float depth (ties below 2^-13 relative depth keep cell order);
 - the per-row pixel span of each splat is solved from its ellipse (no tests outside it),
@@ -228,11 +230,12 @@ def exp_table():
 
 
 @njit(cache=True, fastmath=True)
-def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc, rdone,
-                   color, alpha, depth):
+def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, ex, T, acc,
+                   rdone, color, alpha, depth):
     """Blend tile t0's rows inst[offsets[t0]:offsets[t0+1]] (depth order) into the tile's
     pixels; writes color [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated
-    z). A pixel whose T fell below t_stop is skipped and renormalised at the end. ex: the
+    z). A pixel whose T fell below t_stop is skipped; at the end every pixel with T < t_fill
+    (>= t_stop) is renormalised to alpha 1 (opaque). ex: the
     exp_table. Scratch T [P], acc [P, 4], rdone [tile rows] (bit px - x0: stopped); tiles are
     at most 64 px wide. Returns the number of blends."""
     tw = x1 - x0
@@ -267,28 +270,25 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc
             bdy = cb * dy
             hcdy = F32(0.5) * cc * dy * dy
             row = ry * tw - x0
-            for px in range(bx0, bx1):
+            for px in range(bx0, bx1):  # branch-free blend; selects, not jumps
                 p = row + px
                 Tp = T[p]
-                if Tp < t_stop:
-                    continue
                 dx = F32(px) + F32(0.5) - mx
                 s = dx * (hca * dx + bdy) + hcdy
-                if s > ct:
-                    continue
-                u = s * scale
+                u = min(max(s, F32(0.0)), ct) * scale
                 i = int(u)
                 e0 = ex[i]
                 al = min(A_MAX, o * (e0 + (u - F32(i)) * (ex[i + 1] - e0)))
-                w = al * Tp
+                on = s <= ct and Tp >= t_stop
+                w = al * Tp if on else F32(0.0)
                 acc[p, 0] += w * c0
                 acc[p, 1] += w * c1
                 acc[p, 2] += w * c2
                 acc[p, 3] += w * c3
                 Tn = Tp - w
                 T[p] = Tn
-                blends += 1
-                if Tn < t_stop:
+                blends += on
+                if on and Tn < t_stop:
                     rdone[ry] |= np.uint64(1) << np.uint64(px - x0)
                     n_live -= 1
         if n_live == 0:
@@ -297,12 +297,13 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, ex, T, acc
         for px in range(x0, x1):
             p = (py - y0) * tw + px - x0
             Tp = T[p]
-            f = F32(1.0) / (F32(1.0) - Tp) if Tp < t_stop else F32(1.0)  # opaque stop
+            opaque = Tp < t_fill
+            f = F32(1.0) / (F32(1.0) - Tp) if opaque else F32(1.0)
             color[py, px, 0] = acc[p, 0] * f
             color[py, px, 1] = acc[p, 1] * f
             color[py, px, 2] = acc[p, 2] * f
             depth[py, px] = acc[p, 3] * f
-            alpha[py, px] = F32(1.0) if Tp < t_stop else F32(1.0) - Tp
+            alpha[py, px] = F32(1.0) if opaque else F32(1.0) - Tp
     return blends
 
 
@@ -320,7 +321,7 @@ def finish_fast(color, alpha, depth_acc, bg, rgb, depth):
 
 @njit(cache=True)
 def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
-                      shift, near, far, cov_alpha, t_stop, bg, q, box, qs, bs, keys, rows, inst,
+                      shift, near, far, cov_alpha, t_stop, t_fill, bg, q, box, qs, bs, keys, rows, inst,
                       color, out_rgb, out_alpha, out_depth, stats):
     """Every phase of one camera in this thread (cells c0:c1 of the packed scene pk).
     Tiles are 2^shift px. Scratch: q / qs [G, NQ], box / bs [G, 4], keys / rows [2, G], inst [M] (grown when short: the
@@ -345,7 +346,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
             x0, y0 = tx << shift, ty << shift
             x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
             blends += composite_fast(qs, bs, offsets, inst, ty * tiles_x + tx, x0, y0, x1, y1,
-                                     F32(t_stop), ex, T, acc, rdone, color, out_alpha,
+                                     F32(t_stop), F32(t_fill), ex, T, acc, rdone, color, out_alpha,
                                      out_depth)
     finish_fast(color, out_alpha, out_depth, bg, out_rgb, out_depth)
     covered = 0
@@ -362,7 +363,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
 
 @njit(parallel=True, cache=True)
 def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk, views, cams,
-                       width, height, shift, near, far, cov_alpha, t_stop, bg, q, box, keys, rows,
+                       width, height, shift, near, far, cov_alpha, t_stop, t_fill, bg, q, box, keys, rows,
                        color, out_rgb, out_alpha, out_depth, stats, n_workers):
     """Render cameras i < len(scene_of) (camera i sees packed scene scene_of[i]: cells
     cell_lo[s]:cell_lo[s+1]); n_workers draw whole frames from a shared counter. Scratch
@@ -379,7 +380,7 @@ def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk,
             s = scene_of[i]
             inst = render_fast_frame(cell_lo[s], cell_lo[s + 1], centers, r_means, rho,
                                      cell_start, pk, views[i], cams[i], width, height, shift,
-                                     near, far, cov_alpha, t_stop, bg, q[h, 0], box[h, 0], q[h, 1],
+                                     near, far, cov_alpha, t_stop, t_fill, bg, q[h, 0], box[h, 0], q[h, 1],
                                      box[h, 1], keys[h],
                                      rows[h], inst, color[h], out_rgb[i], out_alpha[i],
                                      out_depth[i], stats[i])

@@ -14,7 +14,9 @@ walkable map (`robot_cameras`), and `sim_ready` keeps the splats that carry the 
 3. Optionally (`bake_colour`) replace each kept splat's view-dependent SH colour by its
    blend-weighted mean colour over the same views (SH degree 0): what the approximate
    `fastbatch.FastBatch` renders.
-4. A per-pixel blend cap / early stop is a render-time setting (`SceneBatch.render`).
+4. Optionally (`fit_iterations` > 0) fit the kept splats to exact renders of the full scene
+   from the same views (`simfit.fit_to_views`): recovers most of what harder pruning loses.
+5. A per-pixel blend cap / early stop is a render-time setting (`SceneBatch.render`).
 """
 
 from __future__ import annotations
@@ -29,10 +31,12 @@ from ..camera import Camera, look_at
 from ..model import GaussianModel
 from ..sh import C0
 from ..types import RasterSettings
+from .batch import SceneBatch
 from .frame import NS, render_frame
 from .function import camera_arrays
 from .preprocess import F_BL, F_R, NF
 from .raster import kernel_tile
+from .simfit import FitConfig, fit_to_views
 from .static import StaticScene
 
 ENV_WIDTH, ENV_HEIGHT = 128, 72
@@ -46,10 +50,12 @@ ROBOT_CAMERA_HEIGHT_M = 0.6
 class SimReadyConfig:
     """keep_mass: fraction of the total measured blend weight the kept splats carry.
     width/height: resolution the significance is measured at (the env's). bake_colour: the
-    result has SH degree 0 with each splat's blend-weighted mean colour over the views."""
+    result has SH degree 0 with each splat's blend-weighted mean colour over the views.
+    fit_iterations: Adam steps fitting the kept splats to exact renders (0 = no fit)."""
 
     keep_mass: float = 0.995
     bake_colour: bool = False
+    fit_iterations: int = 0
     width: int = ENV_WIDTH
     height: int = ENV_HEIGHT
 
@@ -150,6 +156,11 @@ def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
     st = settings or RasterSettings(config.width, config.height, active_sh_degree=deg)
     sig, col = significance_colour(StaticScene(model), cameras, st)
     keep = keep_by_mass(sig, config.keep_mass)
-    if config.bake_colour:
-        model = bake_colour(model, col)
-    return model.index(torch.from_numpy(keep)), sig
+    small = (bake_colour(model, col) if config.bake_colour else model).index(torch.from_numpy(keep))
+    if config.fit_iterations > 0:
+        full = RasterSettings(config.width, config.height, active_sh_degree=model.sh_degree)
+        targets = SceneBatch([StaticScene(model)]).render(cameras, settings=full).rgb
+        fit_st = RasterSettings(config.width, config.height, active_sh_degree=small.sh_degree)
+        small = fit_to_views(small, cameras, targets, fit_st,
+                             FitConfig(iterations=config.fit_iterations))
+    return small, sig
