@@ -240,7 +240,7 @@ def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: 
     shift = TILE_SHIFT
     tile = 1 << shift
     tx, ty = (W + tile - 1) >> shift, (H + tile - 1) >> shift
-    T, acc = np.empty(tile * tile, np.float32), np.empty((tile * tile, 4), np.float32)
+    T, acc = np.empty(tile * tile, np.float32), np.empty(4 * tile * tile, np.float32)
     rdone, ex = np.empty(tile, np.uint64), exp_table()
     t = {"cull+project": 0.0, "sort/bin": 0.0, "composite": 0.0}
     st = RasterSettings(W, H)

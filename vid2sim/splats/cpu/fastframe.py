@@ -27,13 +27,16 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from llvmlite import ir
+from numba import njit, prange, types
+from numba.extending import intrinsic
 
 from ._geom import LOWPASS, jac_limits
 from ._sched import fetch_add, new_counter
 from .static_kernels import frustum_planes, sphere_outside
 
 F32 = np.float32
+U64 = np.uint64
 # packed splat record [G, NP] float32 (model data, view independent)
 P_X, P_Y, P_Z, P_S00, P_S01, P_S02, P_S11, P_S12, P_S22, P_O, P_R, P_G, P_B, P_CUT = range(14)
 NP = 16
@@ -222,6 +225,19 @@ def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
     return inst
 
 
+@intrinsic
+def ctz64(typingctx, x):
+    """Count of trailing zero bits of a uint64 (x != 0)."""
+    if x != types.uint64:
+        return None
+    sig = types.uint64(types.uint64)
+
+    def codegen(context, builder, sig, args):
+        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
+
+    return sig, codegen
+
+
 @njit(cache=True)
 def exp_table():
     """EXP_N + 2 samples of exp(-s) at s = i / EXP_SCALE (linear interpolation in between:
@@ -236,14 +252,14 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, ex
     pixels; writes color [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated
     z). A pixel whose T fell below t_stop is skipped; at the end every pixel with T < t_fill
     (>= t_stop) is renormalised to alpha 1 (opaque). ex: the
-    exp_table. Scratch T [P], acc [P, 4], rdone [tile rows] (bit px - x0: stopped); tiles are
+    exp_table. Scratch T [P], acc [4 P] (r g b z per pixel), rdone [tile rows] (bit px - x0: stopped); tiles are
     at most 64 px wide. Returns the number of blends."""
     tw = x1 - x0
     npx = tw * (y1 - y0)
     for p in range(npx):
         T[p] = 1.0
         for c in range(4):
-            acc[p, c] = 0.0
+            acc[4 * p + c] = 0.0
     for r in range(y1 - y0):
         rdone[r] = 0
     n_live = npx
@@ -261,35 +277,50 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, ex
         if bx1 <= bx0:
             continue
         hca = F32(0.5) * ca
-        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
+        ia = F32(1.0) / ca
+        two_act = F32(2.0) * ca * ct
+        dq = q[v, Q_DET]
+        span = (ALL_BITS >> U64(64 - (bx1 - bx0))) << U64(bx0 - x0)
         for py in range(by0, by1):
             ry = py - y0
             if rdone[ry] & span == span:
-                continue  # every pixel of this row's span has stopped
+                continue  # every pixel of this row's box span has stopped
             dy = F32(py) + F32(0.5) - my
+            disc = two_act - dq * dy * dy  # the ellipse s <= ct spans dx in xm +- sqrt(disc) / a
+            if disc <= F32(0.0):
+                continue
+            half = math.sqrt(disc) * ia
+            xm = mx - F32(0.5) - cb * dy * ia
+            lo = max(math.ceil(xm - half), bx0)
+            hi = min(math.floor(xm + half), bx1 - 1)
+            if lo > hi:
+                continue
+            live = ((ALL_BITS >> U64(63 - (hi - lo))) << U64(lo - x0)) & ~rdone[ry]
             bdy = cb * dy
             hcdy = F32(0.5) * cc * dy * dy
-            row = ry * tw - x0
-            for px in range(bx0, bx1):  # branch-free blend; selects, not jumps
-                p = row + px
+            row = ry * tw
+            while live:  # the live pixels of the span, lowest bit first
+                bit = ctz64(live)
+                live &= live - U64(1)
+                p = U64(row) + bit
                 Tp = T[p]
-                dx = F32(px) + F32(0.5) - mx
+                dx = F32(x0 + np.int64(bit)) + F32(0.5) - mx
                 s = dx * (hca * dx + bdy) + hcdy
                 u = min(max(s, F32(0.0)), ct) * scale
-                i = int(u)
+                i = U64(u)
                 e0 = ex[i]
-                al = min(A_MAX, o * (e0 + (u - F32(i)) * (ex[i + 1] - e0)))
-                on = s <= ct and Tp >= t_stop
-                w = al * Tp if on else F32(0.0)
-                acc[p, 0] += w * c0
-                acc[p, 1] += w * c1
-                acc[p, 2] += w * c2
-                acc[p, 3] += w * c3
+                al = min(A_MAX, o * (e0 + (u - F32(i)) * (ex[i + U64(1)] - e0)))
+                w = al * Tp if s <= ct else F32(0.0)
+                a4 = p * U64(4)
+                acc[a4] += w * c0
+                acc[a4 + U64(1)] += w * c1
+                acc[a4 + U64(2)] += w * c2
+                acc[a4 + U64(3)] += w * c3
                 Tn = Tp - w
                 T[p] = Tn
-                blends += on
-                if on and Tn < t_stop:
-                    rdone[ry] |= np.uint64(1) << np.uint64(px - x0)
+                blends += 1
+                if Tn < t_stop:
+                    rdone[ry] |= U64(1) << bit
                     n_live -= 1
         if n_live == 0:
             break
@@ -299,10 +330,10 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, ex
             Tp = T[p]
             opaque = Tp < t_fill
             f = F32(1.0) / (F32(1.0) - Tp) if opaque else F32(1.0)
-            color[py, px, 0] = acc[p, 0] * f
-            color[py, px, 1] = acc[p, 1] * f
-            color[py, px, 2] = acc[p, 2] * f
-            depth[py, px] = acc[p, 3] * f
+            color[py, px, 0] = acc[4 * p] * f
+            color[py, px, 1] = acc[4 * p + 1] * f
+            color[py, px, 2] = acc[4 * p + 2] * f
+            depth[py, px] = acc[4 * p + 3] * f
             alpha[py, px] = F32(1.0) if opaque else F32(1.0) - Tp
     return blends
 
@@ -337,7 +368,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
     inst = sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst)
     npx = tile * tile
     T = np.empty(npx, np.float32)
-    acc = np.empty((npx, 4), np.float32)
+    acc = np.empty(4 * npx, np.float32)
     rdone = np.empty(tile, np.uint64)
     ex = exp_table()
     blends = 0
