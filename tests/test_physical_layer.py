@@ -1,0 +1,90 @@
+"""The physical layer agrees with itself: where the walkable map lets the envs put the robot, the
+collision mesh the envs hand to pybullet has nothing in the robot's body band.
+
+Scene: the ring scene of tests/test_meshing_scene.py with a 0.2 m low box added, rendered with
+splat-like depth and normal noise and fused by the factory's meshing (build_meshes), then
+`physical_layer`. The map is eroded as the envs plan (EpisodeConfig.clearance minus what the
+factory inflated), the body band is the envs' robot box (RobotConfig: ground_clearance to
+ground_clearance + height above z = 0)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial import cKDTree
+
+from tests.test_meshing_scene import full_scene, ring_views
+from tests.test_meshing_splat_noise import splat_like
+from vid2sim.envs.config import EpisodeConfig, RobotConfig
+from vid2sim.envs.planning import GridPlanner
+from vid2sim.factory.geometry.meshing import MeshingConfig, build_meshes
+from vid2sim.factory.geometry.raycast import mesh_arrays
+from vid2sim.factory.geometry.surface_sampling import points_by_spacing
+from vid2sim.factory.geometry.walkable import PhysicalLayer, WalkableConfig, physical_layer
+
+LOW_BOX = ((0.0, -1.8), (0.4, 0.4), 0.2)  # centre, size, height: clutter below a 0.25 m step
+
+
+def low_box() -> trimesh.Trimesh:
+    (cx, cy), (sx, sy), h = LOW_BOX
+    b = trimesh.creation.box(extents=(sx, sy, h))
+    b.apply_translation((cx, cy, h / 2))
+    return b
+
+
+@pytest.fixture(scope="module")
+def fused():
+    views, path = ring_views(full_scene([low_box()]), n=12)
+    rng = np.random.default_rng(0)
+    return build_meshes([splat_like(v, rng) for v in views], MeshingConfig()), path
+
+
+def body_clearance(grid_layer: PhysicalLayer, mesh: tuple, conf: WalkableConfig) -> np.ndarray:
+    """Horizontal distance [N] from each cell centre the envs may put the robot on to the
+    nearest collision-mesh point inside the robot's body band (inf: none)."""
+    robot, episode = RobotConfig(), EpisodeConfig()
+    planner = GridPlanner(grid_layer.walkable, clearance=episode.clearance - conf.robot_radius_m)
+    rows, cols = np.nonzero(planner.free)
+    assert len(rows) > 1000  # the map is not trivially empty
+    pts = points_by_spacing(*mesh_arrays(mesh), 0.02)  # [P, 3]
+    lo, hi = robot.ground_clearance, robot.ground_clearance + robot.height
+    band = pts[(pts[:, 2] >= lo) & (pts[:, 2] <= hi)]
+    if len(band) == 0:
+        return np.full(len(rows), np.inf)
+    return cKDTree(band[:, :2]).query(planner.to_world(rows, cols))[0]
+
+
+@pytest.mark.parametrize("step", [0.1, 0.25])
+def test_no_walkable_cell_has_collision_geometry_in_the_body_band(fused, step):
+    res, path = fused
+    conf = WalkableConfig(obstacle_min_z_m=step)  # 0.25: a noise-raised step, as on real clips
+    layer = physical_layer(res.ground_points, res.collision, path, conf)
+    assert layer.step_m == pytest.approx(step, abs=0.02)
+    d = body_clearance(layer, (layer.vertices, layer.faces), conf)
+    assert d.min() > RobotConfig().width / 2, d.min()  # the robot's sides touch nothing
+
+
+def test_untrimmed_mesh_disagrees_with_its_map(fused):
+    """The old layer (fused mesh shipped as is, low geometry only ignored by the map) puts the
+    low box beside walkable cells while pybullet still collides with it."""
+    res, path = fused
+    conf = WalkableConfig(obstacle_min_z_m=0.25, trim_collision=False)
+    layer = physical_layer(res.ground_points, res.collision, path, conf)
+    d = body_clearance(layer, mesh_arrays(res.collision), conf)
+    assert d.min() < 0.1  # walkable cells beside (or on) the low box, which pybullet hits
+
+
+def test_step_drops_low_clutter_and_keeps_obstacles(fused):
+    res, path = fused
+    layer = physical_layer(res.ground_points, res.collision, path, WalkableConfig(obstacle_min_z_m=0.25))
+    (cx, cy), (sx, _), _ = LOW_BOX
+    v = layer.vertices
+    near_box = (np.abs(v[:, 0] - cx) < sx) & (np.abs(v[:, 1] - cy) < sx)
+    assert not near_box.any() and layer.dropped_faces > 0
+    # the 0.6 m box and the 1 m box stay: their centres are blocked and their walls in the mesh
+    assert not layer.walkable.lookup(np.array([-1.5, 1.5]), np.array([0.5, -0.5])).any()
+    assert np.count_nonzero(v[:, 2] > 0.5) > 100
+    # with the default 0.1 m step the 0.2 m box is an obstacle
+    low = physical_layer(res.ground_points, res.collision, path, WalkableConfig())
+    assert not low.walkable.lookup(np.array([cx]), np.array([cy])).any()
