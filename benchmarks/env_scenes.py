@@ -1,6 +1,10 @@
 """Real factory scenes for the env render benchmark, built once and cached outside the repo.
 
-    .venv/bin/python benchmarks/env_scenes.py [demo] [gopro]   # build (or find) the cached bundles
+    .venv/bin/python benchmarks/env_scenes.py [demo] [gopro] [--refresh]   # build (or find) the cached bundles
+
+`--refresh` ingests again into the same work folder: the stage cache keeps every stage whose
+key is unchanged and reruns the rest (e.g. a new walkable-stage version), committing the new
+bundle; it prints the registry root and scene id for `benchmarks/envs.py --factory ROOT ID`.
 
 `demo`: the `make demo` street (synthetic 10 s 854x480 video -> fast-preset ingest).
 `gopro`: the shared GoPro MAX sidewalk clip (`../shared/data`, skipped when absent).
@@ -42,10 +46,11 @@ def _ingest(name: str, video: str, licence: str, capture_height: float) -> Path:
     return Path(res.context["bundle_dir"])
 
 
-def build(name: str) -> Optional[Path]:
-    """Build scene `name` ('demo' or 'gopro') once; returns its bundle folder (None: no data)."""
+def build(name: str, refresh: bool = False) -> Optional[Path]:
+    """Build scene `name` ('demo' or 'gopro') once; returns its bundle folder (None: no data).
+    refresh: ingest again (cached stages are kept, changed ones rerun)."""
     hit = find_bundle(name)
-    if hit is not None:
+    if hit is not None and not refresh:
         return hit
     t0 = time.perf_counter()
     if name == "demo":
@@ -53,7 +58,9 @@ def build(name: str) -> Optional[Path]:
         from vid2sim.factory.synthetic.make_street import main as make_street
 
         street = street_preset("demo", seed=0)
-        video = make_street(street, CACHE / name / "synthetic") / "video.mp4"
+        video = CACHE / name / "synthetic" / "video.mp4"
+        if not video.is_file():
+            video = make_street(street, CACHE / name / "synthetic") / "video.mp4"
         out = _ingest(name, str(video), "CC0-synthetic", street.capture_height)
     elif name == "gopro":
         if not GOPRO.is_file():
@@ -66,6 +73,14 @@ def build(name: str) -> Optional[Path]:
     return out
 
 
+def scene_id(bundle: Path) -> str:
+    import json
+
+    return json.loads((bundle / "scene.json").read_text())["scene_id"]
+
+
 if __name__ == "__main__":
-    for n in sys.argv[1:] or ["demo", "gopro"]:
-        print(n, build(n))
+    names = [a for a in sys.argv[1:] if not a.startswith("--")] or ["demo", "gopro"]
+    for n in names:
+        b = build(n, refresh="--refresh" in sys.argv)
+        print(n, b, "" if b is None else f"--factory {CACHE / n / 'registry'} {scene_id(b)}")
