@@ -127,7 +127,7 @@ def main() -> None:
         scenes.append((root, sid, f"{sid} (factory, {n // 1000}k splats)"))
     if not args.skip_gt:
         tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-envs-"))
-        for root, sid in gt_registry(tmp, (75_000, 200_000)):
+        for root, sid in gt_registry(tmp, (75_000,) if args.no_speed else (75_000, 200_000)):
             scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
     print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes, "
           f"limit {args.max_steps} steps")

@@ -85,6 +85,12 @@ def test_step_drops_low_clutter_and_keeps_obstacles(fused):
     # the 0.6 m box and the 1 m box stay: their centres are blocked and their walls in the mesh
     assert not layer.walkable.lookup(np.array([-1.5, 1.5]), np.array([0.5, -0.5])).any()
     assert np.count_nonzero(v[:, 2] > 0.5) > 100
+    # their lowest part (below the step) stays too: the base of a real obstacle is kept
+    base = (v[:, 2] < 0.15) & (np.abs(v[:, 0] - 1.5) < 0.6) & (np.abs(v[:, 1] + 0.5) < 1.0)
+    assert np.count_nonzero(base) > 10
+    bare = physical_layer(res.ground_points, res.collision, path,
+                          WalkableConfig(obstacle_min_z_m=0.25, base_radius_m=0.0))
+    assert len(bare.faces) < len(layer.faces)
     # with the default 0.1 m step the 0.2 m box is an obstacle
     low = physical_layer(res.ground_points, res.collision, path, WalkableConfig())
     assert not low.walkable.lookup(np.array([cx]), np.array([cy])).any()

@@ -23,7 +23,8 @@ Steps:
    corridor anchored at one height.
 3. step height: `obstacle_min_z_m` (0.1 m, the robot's step; the envs' box rides 0.15 m up),
    raised to noise_k x the measured ground-height noise on reconstructed ground. Collision
-   faces whose vertices all lie lower than the step above the local ground are dropped.
+   faces whose vertices all lie lower than the step above the local ground are dropped,
+   unless within base_radius_m of geometry above the step (an obstacle's base).
 4. obstacles: the remaining collision surface below `obstacle_max_z_m` (1.8 m: awnings and
    canopies above do not block a ground robot) rasterised, plus ground steps (smoothed height
    range > max_step_m within step_window_m: kerb drops), inflated by the robot radius
@@ -112,6 +113,9 @@ class WalkableConfig:
     # drop the collision faces below the step (physical layer: map and mesh agree); False keeps
     # the fused mesh and only ignores low geometry in the map (the old, disagreeing behaviour)
     trim_collision: bool = True
+    # sub-step faces this close to geometry above the step are an obstacle's base (a wall's or
+    # a planter's lowest 0.1-0.3 m): kept, they lie in blocked cells anyway
+    base_radius_m: float = 0.1
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -261,14 +265,23 @@ def height_above_ground(points: np.ndarray, ground_z: np.ndarray, origin: np.nda
 
 
 def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarray,
-                    origin: np.ndarray, res: float, step_m: float) -> tuple[np.ndarray, np.ndarray]:
+                    origin: np.ndarray, res: float, step_m: float, base_m: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [V', 3], faces [F', 3]) without the faces whose vertices all lie lower than
-    step_m above the local ground z [H, W] (ground noise, climbable kerbs)."""
+    step_m above the local ground z [H, W] (ground noise, climbable kerbs), except those within
+    base_m of a cell holding geometry above the step (the base of a real obstacle, which blocks
+    the map there anyway)."""
     if len(faces) == 0:
         return vertices, faces
-    h = height_above_ground(vertices, ground_z, origin, res)  # [V]
-    f = faces[h[faces].max(axis=1) >= step_m]
-    used, inv = np.unique(f, return_inverse=True)
+    keep = height_above_ground(vertices, ground_z, origin, res)[faces].max(axis=1) >= step_m  # [F]
+    if base_m > 0 and keep.any() and not keep.all():
+        pts = points_by_spacing(vertices, faces[keep], res / 3.0)  # [P, 3]
+        above = pts[height_above_ground(pts, ground_z, origin, res) >= step_m]
+        tall = ndimage.binary_dilation(_rasterise(above[:, :2], origin, ground_z.shape, res),
+                                       _disc(base_m / res))
+        r, c = _cells(vertices[faces[~keep]].mean(axis=1)[:, :2], origin, ground_z.shape, res)
+        keep[~keep] = tall[r, c]
+    used, inv = np.unique(faces[keep], return_inverse=True)
     return vertices[used], inv.reshape(-1, 3)
 
 
@@ -350,7 +363,7 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
         (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     n_faces = len(f)
     if conf.trim_collision:
-        v, f = trim_below_step(v, f, gz, origin, res, step)
+        v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
     occupied = obstacle_cells((v, f), gz, origin, conf, -np.inf if conf.trim_collision else step) | \
         step_cells(gp, origin, shape, conf, walked)
     free = seen & ~inflate(occupied, conf.robot_radius_m, res)
