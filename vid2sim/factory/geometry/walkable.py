@@ -27,8 +27,9 @@ Steps:
    unless within base_radius_m of geometry above the step (an obstacle's base).
 4. obstacles: the remaining collision surface below `obstacle_max_z_m` (1.8 m: awnings and
    canopies above do not block a ground robot) rasterised, plus ground steps (smoothed height
-   range > max_step_m within step_window_m: kerb drops), inflated by the robot radius
-   (Euclidean distance transform; 0.3 m, a sidewalk delivery robot about 0.6 m wide).
+   range > max_step_m within step_window_m: kerb drops), inflated by the robot radius (0.3 m,
+   a sidewalk delivery robot about 0.6 m wide): a cell is blocked when its centre lies within
+   the radius of a surface sample (exact distance) or of a kerb-step cell's centre.
 5. keep the 4-connected component(s) containing the camera path (each camera position
    snapped to the nearest walkable cell within `snap_m`).
 """
@@ -52,7 +53,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 3  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
@@ -115,7 +116,10 @@ class WalkableConfig:
     trim_collision: bool = True
     # sub-step faces this close to geometry above the step are an obstacle's base (a wall's or
     # a planter's lowest 0.1-0.3 m): kept, they lie in blocked cells anyway
-    base_radius_m: float = 0.1
+    base_radius_m: float = 0.0
+    # inflate obstacles by exact distances from the cell centres to the surface samples (True)
+    # rather than cell centre to occupied cell centre (up to 0.07 m off either way at 0.1 m)
+    exact_inflation: bool = True
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -285,20 +289,39 @@ def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarra
     return vertices[used], inv.reshape(-1, 3)
 
 
-def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
-                   origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
-    """Cells [H, W] bool under collision geometry between min_z (-inf: every face, as after
-    trim_below_step) and obstacle_max_z_m above the local ground height ground_z [H, W]."""
-    shape = ground_z.shape
+def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
+                    origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
+    """xy [P, 2] of collision-surface samples (resolution / 3 apart) between min_z (-inf: every
+    face, as after trim_below_step) and obstacle_max_z_m above the local ground z [H, W]."""
     if collision_mesh is None:
-        return np.zeros(shape, bool)
+        return np.zeros((0, 2))
     v, f = mesh_arrays(collision_mesh)
     if len(f) == 0:
-        return np.zeros(shape, bool)
+        return np.zeros((0, 2))
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
     z = height_above_ground(pts, ground_z, origin, conf.resolution_m)
-    band = (z >= min_z) & (z <= conf.obstacle_max_z_m)
-    return _rasterise(pts[band, :2], origin, shape, conf.resolution_m)
+    return pts[(z >= min_z) & (z <= conf.obstacle_max_z_m), :2]
+
+
+def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
+                   origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
+    """Cells [H, W] bool holding an `obstacle_points` sample."""
+    pts = obstacle_points(collision_mesh, ground_z, origin, conf, min_z)
+    return _rasterise(pts, origin, ground_z.shape, conf.resolution_m)
+
+
+def near_points(points: np.ndarray, origin: np.ndarray, shape: tuple[int, int], res: float,
+                radius_m: float) -> np.ndarray:
+    """Cells [H, W] bool whose centre lies within radius_m of a point of xy [P, 2] (exact
+    distances: a robot centred on any other cell clears every point by more than radius_m)."""
+    out = np.zeros(shape, bool)
+    if len(points) == 0:
+        return out
+    pts = np.unique(np.round(points / (res / 10.0)), axis=0) * (res / 10.0)  # thin to res / 10
+    rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
+    centres = np.stack([origin[0] + (cols.ravel() + 0.5) * res, origin[1] + (rows.ravel() + 0.5) * res], 1)
+    d = cKDTree(pts).query(centres, distance_upper_bound=radius_m + 1e-9)[0]
+    return np.isfinite(d).reshape(shape)
 
 
 def inflate(occupied: np.ndarray, radius_m: float, res: float) -> np.ndarray:
@@ -364,9 +387,16 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
     n_faces = len(f)
     if conf.trim_collision:
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
-    occupied = obstacle_cells((v, f), gz, origin, conf, -np.inf if conf.trim_collision else step) | \
-        step_cells(gp, origin, shape, conf, walked)
-    free = seen & ~inflate(occupied, conf.robot_radius_m, res)
+    min_z = -np.inf if conf.trim_collision else step
+    steps = step_cells(gp, origin, shape, conf, walked)
+    if conf.exact_inflation:
+        pts = obstacle_points((v, f), gz, origin, conf, min_z)
+        blocked = near_points(pts, origin, shape, res, conf.robot_radius_m) | \
+            inflate(steps, conf.robot_radius_m, res)
+    else:
+        blocked = inflate(obstacle_cells((v, f), gz, origin, conf, min_z) | steps,
+                          conf.robot_radius_m, res)
+    free = seen & ~blocked
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
     grid = path_component(free, path_rc, conf.snap_m / res)
