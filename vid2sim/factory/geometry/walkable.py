@@ -117,6 +117,12 @@ class WalkableConfig:
     # sub-step faces this close to geometry above the step are an obstacle's base (a wall's or
     # a planter's lowest 0.1-0.3 m): kept, they lie in blocked cells anyway
     base_radius_m: float = 0.0
+    # the envs' robot box (vid2sim.envs.config.RobotConfig: 0.15 m ground clearance, 0.6 m
+    # tall) above z = 0, their ground plane: after trimming, a surface sample blocks the map
+    # when it lies in this band, or between body_bottom_m and obstacle_max_z_m above the local
+    # ground; what lies below body_bottom_m on both counts cannot touch the box
+    body_bottom_m: float = 0.15
+    body_top_m: float = 0.75
     # inflate obstacles by exact distances from the cell centres to the surface samples (True)
     # rather than cell centre to occupied cell centre (up to 0.07 m off either way at 0.1 m)
     exact_inflation: bool = True
@@ -291,16 +297,19 @@ def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarra
 
 def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
                     origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
-    """xy [P, 2] of collision-surface samples (resolution / 3 apart) between min_z (-inf: every
-    face, as after trim_below_step) and obstacle_max_z_m above the local ground z [H, W]."""
+    """xy [P, 2] of collision-surface samples (resolution / 3 apart) that can touch the robot:
+    between min_z and obstacle_max_z_m above the local ground z [H, W], or inside the robot's
+    box band [body_bottom_m, body_top_m] above z = 0 (the envs' ground plane), whichever
+    holds; min_z = -inf blocks every sample below obstacle_max_z_m."""
     if collision_mesh is None:
         return np.zeros((0, 2))
     v, f = mesh_arrays(collision_mesh)
     if len(f) == 0:
         return np.zeros((0, 2))
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
-    z = height_above_ground(pts, ground_z, origin, conf.resolution_m)
-    return pts[(z >= min_z) & (z <= conf.obstacle_max_z_m), :2]
+    h = height_above_ground(pts, ground_z, origin, conf.resolution_m)
+    in_body = (pts[:, 2] >= conf.body_bottom_m) & (pts[:, 2] <= conf.body_top_m)
+    return pts[((h >= min_z) & (h <= conf.obstacle_max_z_m)) | in_body, :2]
 
 
 def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
@@ -387,7 +396,7 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
     n_faces = len(f)
     if conf.trim_collision:
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
-    min_z = -np.inf if conf.trim_collision else step
+    min_z = conf.body_bottom_m if conf.trim_collision else step
     steps = step_cells(gp, origin, shape, conf, walked)
     if conf.exact_inflation:
         pts = obstacle_points((v, f), gz, origin, conf, min_z)
