@@ -69,6 +69,7 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
         records.append(info["episode"])
         e = info["episode"]
         ends[e.end] += 1
+        ends["obstacles"] += len(env.unwrapped.actors.obstacle_xy())
         x, y, _ = env.unwrapped.robot_pose()
         print(f"  seed {seed}: {e.end}, {e.steps} steps, {e.path_length:.1f} / {e.shortest_length:.1f} m, "
               f"{e.collision_events} collisions, {len(env.unwrapped.actors.obstacle_xy())} obstacles, "
@@ -131,13 +132,14 @@ def main() -> None:
             scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
     print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes, "
           f"limit {args.max_steps} steps")
-    print("| scene | SR | SPL | Cost | SNS | episode ends |\n|---|---|---|---|---|---|")
+    print("| scene | SR | SPL | Cost | SNS | obstacles / episode | episode ends |\n|---|---|---|---|---|---|---|")
     for root, sid, label in scenes:
         if "200k" in sid:
             continue  # same street as the 75k bundle: the expert does not look at the splats
         s, ends = expert_table(root, sid, args.episodes, args.max_steps)
+        n_obs = ends.pop("obstacles", 0) / max(s.episodes, 1)
         why = ", ".join(f"{k} {n}" for k, n in ends.most_common())
-        print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} | {why} |",
+        print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} | {n_obs:.1f} | {why} |",
               flush=True)
     if args.no_speed:
         return
