@@ -116,7 +116,8 @@ def run(args) -> dict:
 
 
 NO_CULL = dict(cov_cull_alpha=None)
-OLD = dict(trim_collision=False)  # the fused mesh shipped as is (before the physical layer)
+# before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
+OLD = dict(trim_collision=False, exact_inflation=False)
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
     "baseline (fuse every pixel, no ground growth)": (
         dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0, **OLD), NO_CULL),
@@ -126,6 +127,8 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), OLD, NO_CULL),
     "+ growth + body carving + walked ground + cov. culling 1e-3": (dict(carve=CarveConfig()), OLD, {}),
     "+ collision trimmed below the step (physical layer, default)": (dict(carve=CarveConfig()), {}, {}),
+    "default without trimming (exact inflation only)": (dict(carve=CarveConfig()), dict(trim_collision=False), {}),
+    "default + obstacle bases kept (0.1 m)": (dict(carve=CarveConfig()), dict(base_radius_m=0.1), {}),
     "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), OLD, NO_CULL),
     "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), OLD, NO_CULL),
     "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
