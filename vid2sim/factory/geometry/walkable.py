@@ -300,7 +300,7 @@ def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
     """xy [P, 2] of collision-surface samples (resolution / 3 apart) that can touch the robot:
     between min_z and obstacle_max_z_m above the local ground z [H, W], or inside the robot's
     box band [body_bottom_m, body_top_m] above z = 0 (the envs' ground plane), whichever
-    holds; min_z = -inf blocks every sample below obstacle_max_z_m."""
+    holds (the band only with trim_collision: without it this is the old, height-only map)."""
     if collision_mesh is None:
         return np.zeros((0, 2))
     v, f = mesh_arrays(collision_mesh)
@@ -308,7 +308,7 @@ def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
         return np.zeros((0, 2))
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
     h = height_above_ground(pts, ground_z, origin, conf.resolution_m)
-    in_body = (pts[:, 2] >= conf.body_bottom_m) & (pts[:, 2] <= conf.body_top_m)
+    in_body = (pts[:, 2] >= conf.body_bottom_m) & (pts[:, 2] <= conf.body_top_m) & conf.trim_collision
     return pts[((h >= min_z) & (h <= conf.obstacle_max_z_m)) | in_body, :2]
 
 
