@@ -107,3 +107,24 @@ def test_inflation_uses_exact_distances_to_the_surface():
     assert not blocked[10, 13] and blocked[10, 7]
     centres = np.stack(np.nonzero(blocked), 1)[:, ::-1] * res + 0.05  # [N, 2] x, y
     assert np.linalg.norm(centres - pt, axis=1).max() <= 0.3 + 1e-9
+
+
+def test_expert_route_keeps_the_same_distance_from_obstacles_on_a_pre_inflated_map():
+    """A factory map is already shrunk by its robot radius, so the planner's clearance there is
+    smaller; the env's own obstacles are not in the map and must get that radius added back."""
+    from vid2sim.envs.actors import EpisodeActors
+    from vid2sim.envs.obstacles import Placement, make_obstacle
+    from vid2sim.formats.walkable import WalkableGrid
+
+    grid = WalkableGrid(np.ones((60, 200), np.uint8), (0.0, -3.0), 0.1)  # 20 m x 6 m, open
+    cone = Placement(make_obstacle("trash_bin", np.random.default_rng(0)), (10.0, 0.0))
+    start, goal = (2.0, 0.0), (18.0, 0.0)
+
+    def gap(pre: float, clearance: float) -> float:
+        route = EpisodeActors._route(grid, clearance, [cone], start, goal, pre)
+        return float(np.linalg.norm(route - np.array(cone.xy), axis=1).min())
+
+    gt_like = gap(0.0, 0.45)  # a GT map: the planner keeps the whole 0.45 m clearance
+    factory = gap(0.3, 0.15)  # a factory map inflated by 0.3 m: the planner adds only 0.15
+    assert factory == pytest.approx(gt_like, abs=0.1)
+    assert gap(0.0, 0.15) < factory - 0.2  # without the fix the route passes 0.3 m closer
