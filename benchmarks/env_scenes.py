@@ -4,7 +4,8 @@
 
 `--refresh` ingests again into the same work folder: the stage cache keeps every stage whose
 key is unchanged and reruns the rest (e.g. a new walkable-stage version), committing the new
-bundle; it prints the registry root and scene id for `benchmarks/envs.py --factory ROOT ID`.
+bundle; it prints the registry root and scene id for `benchmarks/envs.py --factory ROOT ID`, and
+how far the cells the envs may put the robot on stay from collision surface in the robot's band.
 
 `demo`: the `make demo` street (synthetic 10 s 854x480 video -> fast-preset ingest).
 `gopro`: the shared GoPro MAX sidewalk clip (`../shared/data`, skipped when absent).
@@ -73,6 +74,33 @@ def build(name: str, refresh: bool = False) -> Optional[Path]:
     return out
 
 
+def agreement(bundle: Path) -> str:
+    """Map vs physics: the smallest horizontal distance from a cell the envs may put the robot
+    on (planner map) to collision-mesh surface inside the robot box's height band."""
+    import numpy as np
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from vid2sim.envs.config import EpisodeConfig, RobotConfig
+    from vid2sim.envs.planning import GridPlanner
+    from vid2sim.envs.scenes import walkable_inflation
+    from vid2sim.factory.geometry.surface_sampling import points_by_spacing
+    from vid2sim.formats.scene import read_scene_json
+    from vid2sim.formats.walkable import load_walkable
+
+    robot, clearance = RobotConfig(), EpisodeConfig().clearance
+    pre = walkable_inflation(read_scene_json(bundle / "scene.json"))
+    planner = GridPlanner(load_walkable(bundle / "walkable.npz"), clearance=max(clearance - pre, 0.0))
+    rows, cols = np.nonzero(planner.free)
+    mesh = trimesh.load(bundle / "collision.ply", force="mesh", process=False)
+    pts = points_by_spacing(np.asarray(mesh.vertices), np.asarray(mesh.faces), 0.02)  # [P, 3]
+    lo, hi = robot.ground_clearance, robot.ground_clearance + robot.height
+    band = pts[(pts[:, 2] >= lo) & (pts[:, 2] <= hi)]
+    d = cKDTree(band[:, :2]).query(planner.to_world(rows, cols))[0] if len(band) else [np.inf]
+    return (f"{len(rows)} planner cells; nearest collision surface in the robot's {lo:.2f}-{hi:.2f} m "
+            f"band: {np.min(d):.3f} m (robot half-width {robot.width / 2:.2f} m)")
+
+
 def scene_id(bundle: Path) -> str:
     import json
 
@@ -84,3 +112,5 @@ if __name__ == "__main__":
     for n in names:
         b = build(n, refresh="--refresh" in sys.argv)
         print(n, b, "" if b is None else f"--factory {CACHE / n / 'registry'} {scene_id(b)}")
+        if b is not None:
+            print(f"{n} map vs physics: {agreement(b)}")
