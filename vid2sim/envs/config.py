@@ -15,6 +15,13 @@ Constants and where they come from:
   per axis, rotation amplitude U(0, 0.3) deg (x5 for roll), frequency U(2, 10) Hz, random phase;
   on for training, off for evaluation.
 - Physics at 50 Hz, control at 5 Hz (10 physics substeps per action): the paper's appendix.
+- Render fidelity (`EnvConfig.fidelity`): "exact" renders the bundle's splats as they are
+  (`vid2sim.splats` StaticScene); "fast" renders the scene's sim-ready set (pruned to
+  `FastRenderConfig.keep_mass` of the measured blend weight over robot views, one baked colour
+  per splat, opaque early stop at `t_stop`) with the approximate fast kernels
+  (`splats/cpu/fastbatch.py`), made once per scene at load (`envs/simready.py`). Default: fast
+  for training (throughput), exact for evaluation (`training=False`: the figures reported).
+  What fast trades is measured as PSNR against exact by `benchmarks/envs.py`.
 """
 
 from __future__ import annotations
@@ -28,6 +35,7 @@ from vid2sim.envs.obstacles import ObstacleConfig
 
 Variant = Literal["rgb", "depth", "mesh-rgb"]
 VARIANTS: tuple[str, ...] = ("rgb", "depth", "mesh-rgb")
+FIDELITIES: tuple[str, ...] = ("exact", "fast")
 
 
 @dataclass(frozen=True)
@@ -97,6 +105,24 @@ class EpisodeConfig:
 
 
 @dataclass(frozen=True)
+class FastRenderConfig:
+    """The fast render path (fidelity "fast"): sim-ready set and early stop.
+
+    keep_mass: fraction of the measured blend weight the kept splats carry; fit_iterations:
+    Adam steps fitting them to exact renders (0: none; minutes at load, so set
+    VID2SIM_SIMREADY_CACHE to keep the result); views / seed: robot views the set is measured
+    on; t_stop: a pixel stops once its transmittance is below this (renormalised);
+    cell_size: splats per culling cell."""
+
+    keep_mass: float = 0.95
+    fit_iterations: int = 0
+    views: int = 256
+    seed: int = 0
+    t_stop: float = 0.05
+    cell_size: int = 64
+
+
+@dataclass(frozen=True)
 class EnvConfig:
     """Everything a NavEnv needs besides the scene source."""
 
@@ -112,17 +138,26 @@ class EnvConfig:
     episode: EpisodeConfig = field(default_factory=EpisodeConfig)
     obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)  # 0-5 on the corridor
     augment: Optional[AugmentConfig] = None  # None: enabled iff training
-    lod: bool = False  # splat octree level of detail (approximate, faster)
+    lod: bool = False  # splat octree level of detail (approximate; exact fidelity only)
+    fidelity: Optional[str] = None  # "exact" | "fast"; None: fast when training, else exact
+    fast: FastRenderConfig = field(default_factory=FastRenderConfig)
 
     def __post_init__(self) -> None:
         if self.variant not in VARIANTS:
             raise ValueError(f"unknown variant {self.variant!r}; known: {', '.join(VARIANTS)}")
         if self.physics_hz % self.control_hz:
             raise ValueError("physics_hz must be a multiple of control_hz")
+        if self.fidelity is not None and self.fidelity not in FIDELITIES:
+            raise ValueError(f"unknown fidelity {self.fidelity!r}; known: {', '.join(FIDELITIES)}")
 
     @property
     def substeps(self) -> int:
         return self.physics_hz // self.control_hz
+
+    @property
+    def render_fidelity(self) -> str:
+        """"fast" or "exact" (see the module docstring); mesh-rgb ignores it."""
+        return self.fidelity or ("fast" if self.training else "exact")
 
     @property
     def use_jitter(self) -> bool:

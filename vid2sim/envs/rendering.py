@@ -3,7 +3,8 @@
 `SceneView.draw(world_to_cam)` returns (rgb [H, W, 3] uint8, depth [H, W] float32, +inf where
 nothing was drawn). Splats are rendered with `vid2sim.splats` StaticScene (cpu backend, forward
 only) with the paper's screen-space covariance culling on; pixels whose splat coverage is below
-0.5 read as empty (+inf depth).
+0.5 read as empty (+inf depth). `FastSplatView` is the approximate fast path (fidelity "fast"):
+the scene's sim-ready set (`envs/simready.py`) through `splats.cpu.FastBatch`, same outputs.
 """
 
 from __future__ import annotations
@@ -12,9 +13,10 @@ import numpy as np
 import torch
 
 from vid2sim.envs.camera import intrinsics
-from vid2sim.envs.config import CameraConfig
+from vid2sim.envs.config import CameraConfig, FastRenderConfig
 from vid2sim.envs.raster import rasterize
-from vid2sim.envs.scenes import MeshData
+from vid2sim.envs.scenes import MeshData, SceneAssets
+from vid2sim.envs.simready import sim_ready_set
 from vid2sim.splats import Camera, GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
 
@@ -40,6 +42,30 @@ class SplatView:
         rgb = (out.rgb.numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
         depth = out.depth.numpy().astype(np.float32)  # [H, W]
         depth[out.alpha.numpy() < EMPTY_ALPHA] = np.inf
+        return rgb, depth
+
+
+class FastSplatView:
+    """Fast approximate splat renderer: the scene's sim-ready set, built once per process."""
+
+    def __init__(self, assets: SceneAssets, conf: CameraConfig, fast: FastRenderConfig) -> None:
+        self.conf, self.fast = conf, fast
+        self.K = intrinsics(conf)
+        self.sim = sim_ready_set(assets.content_key(), assets.splats, assets.walkable, conf, fast)
+        self.settings = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
+                                       cov_cull_alpha=conf.cov_cull_alpha, active_sh_degree=0)
+
+    def camera(self, world_to_cam: np.ndarray) -> Camera:
+        K, c = self.K, self.conf
+        return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], c.width, c.height,
+                      torch.from_numpy(world_to_cam))
+
+    def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        out = self.sim.batch.render([self.camera(world_to_cam)], settings=self.settings,
+                                    t_stop=self.fast.t_stop, n_workers=1)
+        rgb = (out.rgb[0].numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
+        depth = out.depth[0].numpy()  # [H, W] float32, fresh per call
+        depth[out.alpha[0].numpy() < EMPTY_ALPHA] = np.inf
         return rgb, depth
 
 

@@ -7,6 +7,7 @@ Bundles are always read from `Registry.checkout` (hash-verified), never from a f
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -52,6 +53,14 @@ class SceneAssets:
     walkable: WalkableGrid
     visual_mesh_path: Optional[Path]
     walkable_inflation: float = 0.0  # m the factory already shrank the walkable map by
+
+    def content_key(self) -> str:
+        """sha256 of the bundle's splats.ply (names the scene's derived sets, e.g. sim-ready)."""
+        h = hashlib.sha256()
+        with open(self.bundle_dir / SPLATS_PLY, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 22), b""):
+                h.update(chunk)
+        return h.hexdigest()
 
 
 def walkable_inflation(scene_json: dict) -> float:

@@ -10,7 +10,7 @@ from vid2sim.envs.config import EnvConfig
 from vid2sim.envs.episodes import geodesic_range
 from vid2sim.envs.physics import PhysicsWorld
 from vid2sim.envs.planning import GridPlanner
-from vid2sim.envs.rendering import MeshView, SplatView
+from vid2sim.envs.rendering import FastSplatView, MeshView, SplatView
 from vid2sim.envs.scenes import SceneAssets, load_scene, read_visual_mesh
 from vid2sim.registry import Registry
 
@@ -21,7 +21,7 @@ class SceneWorld:
     walkable: GridPlanner  # raw map: the "left the walkable area" test
     planner: GridPlanner  # inflated by EpisodeConfig.clearance: episodes, obstacles, expert
     physics: PhysicsWorld
-    view: Union[SplatView, MeshView]
+    view: Union[SplatView, FastSplatView, MeshView]
     span: tuple[float, float]  # geodesic start-goal range (m)
 
     def close(self) -> None:
@@ -37,8 +37,10 @@ def build_world(registry: Registry, scene_id: str, conf: EnvConfig,
     planner = GridPlanner(assets.walkable, clearance=clearance)
     span = geodesic_range(planner, conf.episode, scene_id)
     if conf.variant == "mesh-rgb":
-        view: Union[SplatView, MeshView] = MeshView(
+        view: Union[SplatView, FastSplatView, MeshView] = MeshView(
             read_visual_mesh(assets.visual_mesh_path, scene_id), conf.camera)
+    elif conf.render_fidelity == "fast":
+        view = FastSplatView(assets, conf.camera, conf.fast)
     else:
         view = SplatView(assets.splats, conf.camera, lod=conf.lod)
     physics = PhysicsWorld(assets.collision, conf.robot)
