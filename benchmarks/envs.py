@@ -3,11 +3,16 @@
 Scenes: the synthetic street's ground-truth bundle at ~75k and 200k splats (built into a tmp
 registry, any valid bundle works), plus `--registry ROOT --scene ID` (e.g. the factory demo
 scene made by `vid2sim demo`). Expert: evaluation mode (no jitter, no augmentation), 0-5
-obstacles per episode. Speed: one numba thread (one core), the expert driving, resets excluded,
-time split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward.
+obstacles per episode. Speed: one numba thread (one core), the expert driving (training mode:
+jitter + augmentation on), resets excluded; steps per CPU-second of the process (= per core;
+wall-clock is polluted by other load) for the exact render and the fast render (sim-ready set,
+`EnvConfig.fidelity="fast"`, at each `--keep-mass`), CPU ms per step split into render (splats
+or mesh), physics, obstacles, pedestrians, augment, reward, other (expert, stacking, info);
+PSNR of the fast splat render against the exact one at the steps' own camera poses.
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
+       [--no-expert] [--keep-mass 0.9 0.95] [--no-exact]
 """
 
 from __future__ import annotations
@@ -21,13 +26,15 @@ from pathlib import Path
 
 import gymnasium
 import numba
+import numpy as np
 
 from common import hardware_line
 import vid2sim.envs  # noqa: F401  (registers the env ids)
-from vid2sim.envs.config import RewardConfig
+from vid2sim.envs.config import FastRenderConfig, RewardConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import summarize
 from vid2sim.envs.nav_env import PARTS
+from vid2sim.envs.rendering import SplatView
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
 from vid2sim.registry import Registry
 
@@ -78,20 +85,33 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
     return summarize(records), ends
 
 
-def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[float, dict]:
-    """Steps/s of the expert driving (training mode: jitter + augmentation on), resets excluded."""
-    env = make(root, scene, task, variant)
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR (dB) of uint8 images a vs b [H, W, 3]."""
+    mse = float(((a.astype(np.float64) - b.astype(np.float64)) ** 2).mean())
+    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+
+
+def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: str,
+          keep_mass: float = 0.9, every: int = 10) -> tuple[float, float, dict, list, int]:
+    """(steps per CPU-s, steps per wall-s, CPU ms per step by part, PSNR of fast vs exact
+    every `every` steps (fast only), splats rendered) of the expert driving, resets excluded."""
+    env = make(root, scene, task, variant, fidelity=fidelity, fast=FastRenderConfig(keep_mass=keep_mass))
     u, expert = env.unwrapped, PurePursuitExpert()
+    view = u.world.view
+    n_splats = view.sim.model.num if fidelity == "fast" else u.world.assets.splats.num
     env.reset(seed=100)
     expert.reset(env)
     env.step(expert.act(env))  # warm-up (JIT)
     u.timings.clear()
-    total, done_steps, seed = 0.0, 0, 101
+    cpu, wall, done_steps, seed, poses = 0.0, 0.0, 0, 101, []
     while done_steps < steps:
-        t0 = time.perf_counter()
+        c0, w0 = time.process_time(), time.perf_counter()
         _, _, term, trunc, _ = env.step(expert.act(env))
-        total += time.perf_counter() - t0
+        cpu += time.process_time() - c0
+        wall += time.perf_counter() - w0
         done_steps += 1
+        if done_steps % every == 0:
+            poses.append(u.last_world_to_cam.copy())
         if term or trunc:  # reset time stays out of the per-part figures too
             before = dict(u.timings)
             env.reset(seed=seed)
@@ -100,9 +120,13 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[f
             u.timings.update(before)
             seed += 1
     parts = {k: 1e3 * u.timings.get(k, 0.0) / done_steps for k in PARTS}
-    parts["other"] = 1e3 * total / done_steps - sum(parts.values())
+    parts["other"] = 1e3 * cpu / done_steps - sum(parts.values())
+    quality = []
+    if fidelity == "fast":
+        exact = SplatView(u.world.assets.splats, u.config.camera)
+        quality = [psnr(view.draw(w)[0], exact.draw(w)[0]) for w in poses]
     env.close()
-    return done_steps / total, parts
+    return done_steps / cpu, done_steps / wall, parts, quality, n_splats
 
 
 def main() -> None:
@@ -115,6 +139,12 @@ def main() -> None:
                     help="another registry scene (repeatable), e.g. the GoPro factory scene")
     ap.add_argument("--skip-gt", action="store_true")
     ap.add_argument("--no-speed", action="store_true", help="only the expert table")
+    ap.add_argument("--no-expert", action="store_true", help="only the speed table")
+    ap.add_argument("--gt-splats", type=int, nargs="*", default=[],
+                    help="splat counts of the synthetic GT bundles (default 75k, and 200k for speed)")
+    ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
+    ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.9, 0.95],
+                    help="fast path: sim-ready keep_mass values to measure")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
     args = ap.parse_args()
@@ -128,12 +158,13 @@ def main() -> None:
         scenes.append((root, sid, f"{sid} (factory, {n // 1000}k splats)"))
     if not args.skip_gt:
         tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-envs-"))
-        for root, sid in gt_registry(tmp, (75_000,) if args.no_speed else (75_000, 200_000)):
+        counts = tuple(args.gt_splats) or ((75_000,) if args.no_speed else (75_000, 200_000))
+        for root, sid in gt_registry(tmp, counts):
             scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
     print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes, "
           f"limit {args.max_steps} steps")
     print("| scene | SR | SPL | Cost | SNS | obstacles / episode | episode ends |\n|---|---|---|---|---|---|---|")
-    for root, sid, label in scenes:
+    for root, sid, label in ([] if args.no_expert else scenes):
         if "200k" in sid:
             continue  # same street as the 75k bundle: the expert does not look at the splats
         s, ends = expert_table(root, sid, args.episodes, args.max_steps)
@@ -143,15 +174,23 @@ def main() -> None:
               flush=True)
     if args.no_speed:
         return
-    print(f"\nenv steps/s on one core ({args.steps} steps, expert actions, training mode), "
-          "ms per step by part")
-    print("| scene | task / obs | steps/s | " + " | ".join(PARTS) + " | other |")
-    print("|---|---|---|" + "---|" * (len(PARTS) + 1))
+    print(f"\nenv steps per CPU-second, one core ({args.steps} steps, expert actions, training mode), "
+          "CPU ms per step by part; fast = sim-ready set (keep_mass k, colours baked, t_stop "
+          f"{FastRenderConfig().t_stop}), PSNR of its splat render vs exact at every 10th step's pose")
+    print("| scene | task / obs | render | splats | steps/CPU-s | steps/wall-s | PSNR mean (min) dB | "
+          + " | ".join(PARTS) + " | other |")
+    print("|---|---|---|---|---|---|---|" + "---|" * (len(PARTS) + 1))
+    paths = ([] if args.no_exact else [("exact", 0.0)]) + [("fast", k) for k in args.keep_mass]
     for root, sid, label in scenes:
         for task, variant in SPEED_RUNS:
-            sps, parts = speed(root, sid, task, variant, args.steps)
-            cells = " | ".join(f"{parts[k]:.2f}" for k in (*PARTS, "other"))
-            print(f"| {label} | {task} {variant} | {sps:.0f} | {cells} |", flush=True)
+            for fidelity, keep in paths:
+                sps, wps, parts, q, n = speed(root, sid, task, variant, args.steps, fidelity, keep)
+                name = "exact" if fidelity == "exact" else f"fast k={keep}"
+                qual = f"{np.mean(q):.1f} ({min(q):.1f})" if q else "-"
+                cells = " | ".join(f"{parts[k]:.2f}" for k in (*PARTS, "other"))
+                print(f"| {label} | {task} {variant} | {name} | {n // 1000}k | {sps:.0f} | {wps:.0f} | "
+                      f"{qual} | {cells} |", flush=True)
+    print(f"\nat end: {hardware_line()}")
 
 
 if __name__ == "__main__":

@@ -62,9 +62,10 @@ def make(registry, task: str = "PointNav", **kw):
     return gymnasium.make(f"vid2sim/{task}-v0", registry=reg.root, scenes=SCENE, checkout_root=co, **kw)
 
 
-@pytest.mark.parametrize("variant", ["rgb", "depth", "mesh-rgb"])
-def test_check_env_pointnav(registry, variant):
-    env = make(registry, variant=variant)
+@pytest.mark.parametrize("variant,fidelity", [("rgb", "fast"), ("depth", "fast"), ("mesh-rgb", None),
+                                              ("rgb", "exact"), ("depth", "exact")])
+def test_check_env_pointnav(registry, variant, fidelity):
+    env = make(registry, variant=variant, fidelity=fidelity)
     gym_check_env(env.unwrapped, skip_render_check=True)
     sb3_check_env(env.unwrapped, warn=False)
     obs, _ = env.reset(seed=0)
@@ -102,6 +103,24 @@ def test_same_seed_same_episode(registry):
         assert ra == rb
     oc, _ = a.reset(seed=8)
     assert not np.array_equal(oc["vector"], ob["vector"])  # another seed, another episode
+
+
+def test_fast_fidelity_defaults_shared_set_and_agreement(registry):
+    fast, exact = make(registry, training=False, fidelity="fast"), make(registry, training=False)
+    assert make(registry).unwrapped.config.render_fidelity == "fast"  # training default
+    assert exact.unwrapped.config.render_fidelity == "exact"  # evaluation default
+    other = make(registry, training=False, fidelity="fast", variant="depth")
+    sim = fast.unwrapped.world.view.sim
+    assert other.unwrapped.world.view.sim is sim  # one sim-ready set per scene and process
+    assert 0 < sim.model.num < exact.unwrapped.world.assets.splats.num
+    of, _ = fast.reset(seed=4)
+    oe, _ = exact.reset(seed=4)
+    np.testing.assert_array_equal(of["vector"], oe["vector"])  # same episode
+    a, b = of["image"][-1].astype(float), oe["image"][-1].astype(float)
+    psnr = 10 * np.log10(255.0 ** 2 / ((a - b) ** 2).mean())
+    assert 20.0 < psnr < 80.0, psnr  # close to the exact render, not the same image
+    with pytest.raises(ValueError, match="fidelity"):
+        make(registry, fidelity="approx")
 
 
 def test_bad_actions_named_and_harmless(registry):

@@ -26,6 +26,15 @@ OBSTACLE_MARGIN = 0.25
 from vid2sim.formats.walkable import WalkableGrid
 
 
+def _over(rgb: np.ndarray, depth: np.ndarray, rgb_b: np.ndarray, depth_b: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """`composite` of layer b over (rgb, depth); skipped when b drew nothing (actors out of view:
+    the splat depth already holds +inf where empty, so the result would be the same)."""
+    if not np.isfinite(depth_b).any():
+        return rgb, depth
+    return composite(rgb, depth, rgb_b, depth_b)
+
+
 class EpisodeActors:
     """Obstacles and pedestrians of one episode in one physics client."""
 
@@ -70,25 +79,25 @@ class EpisodeActors:
 
     def step(self, dt: float, robot_xy: tuple[float, float]) -> tuple[float, float]:
         """Advance falling obstacles and walkers by dt; returns their seconds (obstacles, people)."""
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         if self.obstacles is not None:
             self.obstacles.step(dt, robot_xy)
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         if self.crowd is not None:
             self.crowd.step(dt)
-        return t1 - t0, time.perf_counter() - t1
+        return t1 - t0, time.process_time() - t1
 
     def draw_over(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, float, float]:
         """Composite obstacles then pedestrians over (rgb, depth); also returns their seconds."""
         H, W = depth.shape
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         if self.obstacles is not None and self.obstacles.placements:
-            rgb, depth = composite(rgb, depth, *self.obstacles.draw(K, w2c, W, H))
-        t1 = time.perf_counter()
+            rgb, depth = _over(rgb, depth, *self.obstacles.draw(K, w2c, W, H))
+        t1 = time.process_time()
         if self.crowd is not None:
-            rgb, depth = composite(rgb, depth, *self.crowd.draw(K, w2c, W, H))
-        return rgb, depth, t1 - t0, time.perf_counter() - t1
+            rgb, depth = _over(rgb, depth, *self.crowd.draw(K, w2c, W, H))
+        return rgb, depth, t1 - t0, time.process_time() - t1
 
     def obstacle_xy(self) -> np.ndarray:
         return self.obstacles.positions if self.obstacles is not None else np.zeros((0, 2))

@@ -114,7 +114,7 @@ class FastRenderConfig:
     on; t_stop: a pixel stops once its transmittance is below this (renormalised);
     cell_size: splats per culling cell."""
 
-    keep_mass: float = 0.95
+    keep_mass: float = 0.9  # demo factory scene: ~28 dB vs exact, >= 200 steps/s (0.95: ~33 dB)
     fit_iterations: int = 0
     views: int = 256
     seed: int = 0

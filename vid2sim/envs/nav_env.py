@@ -151,9 +151,9 @@ class NavEnv(gym.Env):
         t_obs, t_ped = self.actors.step(1.0 / c.control_hz, (self.state.x, self.state.y))
         self.timings["obstacles"] += t_obs
         self.timings["pedestrians"] += t_ped
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         collided = self._drive(speed_n * c.robot.max_speed, steer_n * c.robot.max_steer)
-        t1 = time.perf_counter()
+        t1 = time.process_time()
         self.timings["physics"] += t1 - t0
         self.steps += 1
         self.t += 1.0 / c.control_hz
@@ -171,7 +171,7 @@ class NavEnv(gym.Env):
                               self.world.walkable.is_walkable(self.state.x, self.state.y), self.steps)
         self.prev_steer = steer_n
         terms = reward(outcome, c.reward)
-        self.timings["reward"] += time.perf_counter() - t1
+        self.timings["reward"] += time.process_time() - t1
         self.frames.append(self._frame())
         self.vectors.append(self._goal_vector())
         info = self._info(terms)
@@ -221,20 +221,21 @@ class NavEnv(gym.Env):
 
     def _frame(self) -> np.ndarray:
         """Camera image [C, H, W] uint8 at the current pose."""
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         c = self.config
         w2c = world_to_camera(self.state.x, self.state.y, self.state.yaw, c.camera,
                               self.jitter.at(self.t))
+        self.last_world_to_cam = w2c  # [4, 4], the pose of the latest frame
         rgb, depth = self.world.view.draw(w2c)
-        self.timings["render"] += time.perf_counter() - t0
+        self.timings["render"] += time.process_time() - t0
         rgb, depth, t_obs, t_ped = self.actors.draw_over(rgb, depth, self.K, w2c)
         self.timings["obstacles"] += t_obs
         self.timings["pedestrians"] += t_ped
         if c.variant == "depth":
             return depth_to_u8(depth, c.camera.depth_max)[None]
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         rgb = self.augmenter.apply(rgb, depth)
-        self.timings["augment"] += time.perf_counter() - t0
+        self.timings["augment"] += time.process_time() - t0
         return np.ascontiguousarray(rgb.transpose(2, 0, 1))
 
     def distance(self) -> float:
