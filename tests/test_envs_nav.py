@@ -123,6 +123,30 @@ def test_fast_fidelity_defaults_shared_set_and_agreement(registry):
         make(registry, fidelity="approx")
 
 
+def test_sweep_check_same_as_substep_queries(registry):
+    """One contact query per clear control step gives the substep loop's episode exactly."""
+    fast, ref = make(registry), make(registry, sweep_check=False)
+    rng = np.random.default_rng(1)
+    clear = collided = 0
+    for seed in range(3):
+        fast.reset(seed=seed)
+        ref.reset(seed=seed)
+        for _ in range(40):
+            act = np.array([1.0, rng.choice([-1.0, 0.0, 1.0])], np.float32)
+            of, rf, tf, uf, inf = fast.step(act)
+            orf, rr, tr, ur, inr = ref.step(act)
+            assert fast.unwrapped.robot_pose() == ref.unwrapped.robot_pose()
+            assert (rf, tf, uf, inf["collided"]) == (rr, tr, ur, inr["collided"])
+            np.testing.assert_array_equal(of["image"], orf["image"])
+            assert fast.unwrapped.travelled == ref.unwrapped.travelled
+            collided += inf["collided"]
+            if tf or uf:
+                break
+        clear += fast.unwrapped.clear_steps
+        assert ref.unwrapped.clear_steps == 0
+    assert clear > 0 and collided > 0  # both the skip and the substep loop ran
+
+
 def test_bad_actions_named_and_harmless(registry):
     env, ref = make(registry), make(registry)
     env.reset(seed=3)

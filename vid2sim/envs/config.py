@@ -140,6 +140,10 @@ class EnvConfig:
     augment: Optional[AugmentConfig] = None  # None: enabled iff training
     lod: bool = False  # splat octree level of detail (approximate; exact fidelity only)
     fidelity: Optional[str] = None  # "exact" | "fast"; None: fast when training, else exact
+    # one contact query per control step when the robot box stays clear of everything over all
+    # its substeps (same result as the 10 substep queries; physics.clear_within); False: always
+    # query each substep
+    sweep_check: bool = True
     fast: FastRenderConfig = field(default_factory=FastRenderConfig)
 
     def __post_init__(self) -> None:

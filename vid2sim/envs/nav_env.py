@@ -38,7 +38,7 @@ from vid2sim.envs.camera import Jitter, intrinsics, world_to_camera
 from vid2sim.envs.config import EnvConfig
 from vid2sim.envs.episodes import Episode, sample_episode
 from vid2sim.envs.metrics import EpisodeRecord
-from vid2sim.envs.physics import CONTACT_EPS, RobotState
+from vid2sim.envs.physics import CONTACT_EPS, SWEEP_MARGIN, RobotState
 from vid2sim.envs.planning import path_length
 from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.reward import RewardTerms, StepOutcome, reward
@@ -123,6 +123,7 @@ class NavEnv(gym.Env):
         self.prev_steer = 0.0
         self.prev_collided = False
         self.collision_events = self.collision_steps = self.proximity_steps = 0
+        self.clear_steps = 0  # control steps whose substeps needed no contact query
         self.travelled = 0.0
         self.trace = [(self.state.x, self.state.y)]
         frame = self._frame()
@@ -210,6 +211,8 @@ class NavEnv(gym.Env):
         """Physics substeps for one control step; True when any substep was blocked."""
         c = self.config
         dt = 1.0 / c.physics_hz
+        if c.sweep_check and self._drive_clear(speed, steer, dt):
+            return False
         collided = False
         for _ in range(c.substeps):
             x0, y0 = self.state.x, self.state.y
@@ -218,6 +221,30 @@ class NavEnv(gym.Env):
             self.travelled += math.hypot(self.state.x - x0, self.state.y - y0)
         self.trace.append((self.state.x, self.state.y))
         return collided
+
+    def _drive_clear(self, speed: float, steer: float, dt: float) -> bool:
+        """The control step's substeps without contact queries, when the box stays clear of
+        everything for all of them (one `clear_within` query at the start pose): the same
+        poses, travel and (no) contact as the substep loop. False (nothing done) otherwise."""
+        phys, s0 = self.world.physics, self.state
+        if phys.depth > 0.0:
+            return False
+        poses, st, reach = [], s0, 0.0
+        for _ in range(self.config.substeps):
+            x, y, yaw = phys.propose(st, speed, steer, dt)
+            st = RobotState(x, y, yaw, speed, steer)
+            poses.append(st)
+            reach = max(reach, phys.reach_of(s0.x, s0.y, s0.yaw, x, y, yaw))
+        if not phys.clear_within(reach + SWEEP_MARGIN):
+            return False
+        for p in poses:
+            self.travelled += math.hypot(p.x - s0.x, p.y - s0.y)
+            s0 = p
+        phys.move_free(st.x, st.y, st.yaw)
+        self.state = st
+        self.clear_steps += 1
+        self.trace.append((st.x, st.y))
+        return True
 
     def _frame(self) -> np.ndarray:
         """Camera image [C, H, W] uint8 at the current pose."""

@@ -19,6 +19,7 @@ from vid2sim.envs.config import RobotConfig
 from vid2sim.envs.scenes import MeshData
 
 CONTACT_EPS = 1e-3  # m of penetration that counts as touching
+SWEEP_MARGIN = 0.02  # m added to the swept reach before substep contact queries are skipped
 DEPTH_TOL = 1e-4  # m: a move that deepens the penetration by more than this is blocked
 
 
@@ -84,12 +85,41 @@ class PhysicsWorld:
                 depth = max(depth, d)
         return hit, depth
 
-    def step(self, state: RobotState, speed: float, steer: float, dt: float) -> tuple[RobotState, list[int]]:
-        """One substep of the kinematic bicycle; returns (new state, bodies hit). Blocked moves stay."""
+    def propose(self, state: RobotState, speed: float, steer: float, dt: float
+                ) -> tuple[float, float, float]:
+        """The kinematic bicycle's next pose (x, y, yaw) after dt, ignoring contacts."""
         L = self.robot_conf.wheelbase
         yaw = state.yaw + speed / L * math.tan(steer) * dt
         mid = 0.5 * (state.yaw + yaw)
-        nx, ny = state.x + speed * math.cos(mid) * dt, state.y + speed * math.sin(mid) * dt
+        return state.x + speed * math.cos(mid) * dt, state.y + speed * math.sin(mid) * dt, yaw
+
+    def clear_within(self, reach: float) -> bool:
+        """True when no body but the ground comes within `reach` m of the robot box at its pose.
+
+        Every point of the box moves at most |dxy| + |dyaw| x (half-diagonal) between two poses,
+        so a box `reach` m clear of everything cannot touch anything at a pose that close: the
+        substeps' contact queries can be skipped (`NavEnv._drive`)."""
+        c = self.client
+        lo, hi = pb.getAABB(self.robot_id, physicsClientId=c)
+        lo = [v - reach for v in lo]
+        hi = [v + reach for v in hi]
+        near = {b for b, _ in (pb.getOverlappingObjects(lo, hi, physicsClientId=c) or ())}
+        return not any(pb.getClosestPoints(self.robot_id, b, reach, physicsClientId=c)
+                       for b in near - self.ignore)
+
+    def reach_of(self, x0: float, y0: float, yaw0: float, x: float, y: float, yaw: float) -> float:
+        """Bound (m) on how far any point of the box moves from pose 0 to pose 1."""
+        r = math.hypot(self.robot_conf.length / 2, self.robot_conf.width / 2)
+        return math.hypot(x - x0, y - y0) + abs(yaw - yaw0) * r
+
+    def move_free(self, x: float, y: float, yaw: float) -> None:
+        """Move the box to a pose known to be clear of everything (see `clear_within`)."""
+        self._move(x, y, yaw)
+        self.depth = 0.0
+
+    def step(self, state: RobotState, speed: float, steer: float, dt: float) -> tuple[RobotState, list[int]]:
+        """One substep of the kinematic bicycle; returns (new state, bodies hit). Blocked moves stay."""
+        nx, ny, yaw = self.propose(state, speed, steer, dt)
         self._move(nx, ny, yaw)
         hit, depth = self.contacts()
         if hit and depth > self.depth + DEPTH_TOL:  # pushing further in: blocked, undone
