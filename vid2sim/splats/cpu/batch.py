@@ -28,7 +28,8 @@ class EnvFrames:
     """Env outputs of N cameras (torch views of numpy buffers, float32 unless noted).
 
     rgb [N, H, W, 3] over the background; alpha [N, H, W]; depth [N, H, W] expected camera z
-    (0 where empty); blends [N, H, W] int32 blended splats per pixel; stats [N, NS] float64
+    (0 where empty); blends [N, H, W] int32 blended splats per pixel (None from FastBatch);
+    stats [N, NS] float64
     (splats in view, tile instances, blends, covered pixels: frame.S_* columns)."""
 
     rgb: torch.Tensor
