@@ -6,13 +6,14 @@ scene made by `vid2sim demo`). Expert: evaluation mode (no jitter, no augmentati
 obstacles per episode. Speed: one numba thread (one core), the expert driving (training mode:
 jitter + augmentation on), resets excluded; steps per CPU-second of the process (= per core;
 wall-clock is polluted by other load) for the exact render and the fast render (sim-ready set,
-`EnvConfig.fidelity="fast"`, at each `--keep-mass`), CPU ms per step split into render (splats
-or mesh), physics, obstacles, pedestrians, augment, reward, other (expert, stacking, info);
-PSNR of the fast splat render against the exact one at the steps' own camera poses.
+`EnvConfig.fidelity="fast"`, at each `--fast` keep_mass[:fit_iterations]), CPU ms per step
+split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward, other
+(expert, stacking, info); PSNR of the fast splat RGB render against the exact one at the
+steps' own camera poses (the depth runs too).
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
-       [--no-expert] [--keep-mass 0.9 0.95] [--no-exact]
+       [--no-expert] [--fast 0.9 0.95 0.9:600] [--no-exact]
 """
 
 from __future__ import annotations
@@ -92,14 +93,15 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: str,
-          keep_mass: float = 0.9, every: int = 10) -> tuple[float, float, dict, list, int]:
+          fast: FastRenderConfig = FastRenderConfig(), every: int = 10
+          ) -> tuple[float, float, dict, list, int]:
     """(steps per CPU-s, steps per wall-s, CPU ms per step by part, PSNR of fast vs exact
     every `every` steps (fast only), splats rendered) of the expert driving, resets excluded."""
-    env = make(root, scene, task, variant, fidelity=fidelity, fast=FastRenderConfig(keep_mass=keep_mass))
+    env = make(root, scene, task, variant, fidelity=fidelity, fast=fast)
     u, expert = env.unwrapped, PurePursuitExpert()
+    env.reset(seed=100)
     view = u.world.view
     n_splats = view.sim.model.num if fidelity == "fast" else u.world.assets.splats.num
-    env.reset(seed=100)
     expert.reset(env)
     env.step(expert.act(env))  # warm-up (JIT)
     u.timings.clear()
@@ -143,8 +145,9 @@ def main() -> None:
     ap.add_argument("--gt-splats", type=int, nargs="*", default=[],
                     help="splat counts of the synthetic GT bundles (default 75k, and 200k for speed)")
     ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
-    ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.9, 0.95],
-                    help="fast path: sim-ready keep_mass values to measure")
+    ap.add_argument("--fast", nargs="+", default=["0.9", "0.95"], metavar="KEEP[:FIT]",
+                    help="fast path settings to measure: sim-ready keep_mass, optionally with "
+                         "fit iterations (e.g. 0.9:600; set VID2SIM_SIMREADY_CACHE to keep the fit)")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
     args = ap.parse_args()
@@ -175,17 +178,19 @@ def main() -> None:
     if args.no_speed:
         return
     print(f"\nenv steps per CPU-second, one core ({args.steps} steps, expert actions, training mode), "
-          "CPU ms per step by part; fast = sim-ready set (keep_mass k, colours baked, t_stop "
+          "CPU ms per step by part; fast = sim-ready set (keep_mass k, colours baked, fit iterations, t_stop "
           f"{FastRenderConfig().t_stop}), PSNR of its splat render vs exact at every 10th step's pose")
     print("| scene | task / obs | render | splats | steps/CPU-s | steps/wall-s | PSNR mean (min) dB | "
           + " | ".join(PARTS) + " | other |")
     print("|---|---|---|---|---|---|---|" + "---|" * (len(PARTS) + 1))
-    paths = ([] if args.no_exact else [("exact", 0.0)]) + [("fast", k) for k in args.keep_mass]
+    paths = ([] if args.no_exact else [("exact", "")]) + [("fast", f) for f in args.fast]
     for root, sid, label in scenes:
         for task, variant in SPEED_RUNS:
-            for fidelity, keep in paths:
-                sps, wps, parts, q, n = speed(root, sid, task, variant, args.steps, fidelity, keep)
-                name = "exact" if fidelity == "exact" else f"fast k={keep}"
+            for fidelity, spec in paths:
+                keep, _, fit = spec.partition(":")
+                conf = FastRenderConfig(keep_mass=float(keep or 0.9), fit_iterations=int(fit or 0))
+                sps, wps, parts, q, n = speed(root, sid, task, variant, args.steps, fidelity, conf)
+                name = "exact" if fidelity == "exact" else f"fast k={keep}" + (f" fit {fit}" if fit else "")
                 qual = f"{np.mean(q):.1f} ({min(q):.1f})" if q else "-"
                 cells = " | ".join(f"{parts[k]:.2f}" for k in (*PARTS, "other"))
                 print(f"| {label} | {task} {variant} | {name} | {n // 1000}k | {sps:.0f} | {wps:.0f} | "

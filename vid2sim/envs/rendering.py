@@ -9,6 +9,8 @@ the scene's sim-ready set (`envs/simready.py`) through `splats.cpu.FastBatch`, s
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 import torch
 
@@ -16,7 +18,7 @@ from vid2sim.envs.camera import intrinsics
 from vid2sim.envs.config import CameraConfig, FastRenderConfig
 from vid2sim.envs.raster import rasterize
 from vid2sim.envs.scenes import MeshData, SceneAssets
-from vid2sim.envs.simready import sim_ready_set
+from vid2sim.envs.simready import SimReadySet, sim_ready_set
 from vid2sim.splats import Camera, GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
 
@@ -46,14 +48,22 @@ class SplatView:
 
 
 class FastSplatView:
-    """Fast approximate splat renderer: the scene's sim-ready set, built once per process."""
+    """Fast approximate splat renderer: the scene's sim-ready set, built once per process on
+    first use (the first reset; an env that never draws, e.g. a privileged one, never builds it)."""
 
     def __init__(self, assets: SceneAssets, conf: CameraConfig, fast: FastRenderConfig) -> None:
-        self.conf, self.fast = conf, fast
+        self.conf, self.fast, self.assets = conf, fast, assets
         self.K = intrinsics(conf)
-        self.sim = sim_ready_set(assets.content_key(), assets.splats, assets.walkable, conf, fast)
+        self._sim: Optional[SimReadySet] = None
         self.settings = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
                                        cov_cull_alpha=conf.cov_cull_alpha, active_sh_degree=0)
+
+    @property
+    def sim(self) -> SimReadySet:
+        if self._sim is None:
+            a = self.assets
+            self._sim = sim_ready_set(a.content_key(), a.splats, a.walkable, self.conf, self.fast)
+        return self._sim
 
     def camera(self, world_to_cam: np.ndarray) -> Camera:
         K, c = self.K, self.conf
