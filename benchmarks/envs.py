@@ -8,8 +8,8 @@ jitter + augmentation on), resets excluded; steps per CPU-second of the process 
 wall-clock is polluted by other load) for the exact render and the fast render (sim-ready set,
 `EnvConfig.fidelity="fast"`, at each `--fast` keep_mass[:fit_iterations]), CPU ms per step
 split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward, other
-(expert, stacking, info); PSNR of the fast splat RGB render against the exact one at the
-steps' own camera poses (the depth runs too).
+(frame stacking, info, goal vector, wrappers; the expert's own time is left out); PSNR of the
+fast splat RGB render against the exact one at the steps' own camera poses (depth runs too).
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
@@ -107,8 +107,9 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: 
     u.timings.clear()
     cpu, wall, done_steps, seed, poses = 0.0, 0.0, 0, 101, []
     while done_steps < steps:
+        action = expert.act(env)  # the agent's time is not the env's
         c0, w0 = time.process_time(), time.perf_counter()
-        _, _, term, trunc, _ = env.step(expert.act(env))
+        _, _, term, trunc, _ = env.step(action)
         cpu += time.process_time() - c0
         wall += time.perf_counter() - w0
         done_steps += 1
