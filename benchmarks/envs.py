@@ -13,7 +13,7 @@ fast splat RGB render against the exact one at the steps' own camera poses (dept
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
-       [--no-expert] [--fast 0.9 0.95 0.9:600] [--no-exact]
+       [--no-expert] [--fast 0.85:600 0.9:600 0.9 0.95] [--no-exact]
 """
 
 from __future__ import annotations
@@ -146,9 +146,10 @@ def main() -> None:
     ap.add_argument("--gt-splats", type=int, nargs="*", default=[],
                     help="splat counts of the synthetic GT bundles (default 75k, and 200k for speed)")
     ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
-    ap.add_argument("--fast", nargs="+", default=["0.9", "0.95"], metavar="KEEP[:FIT]",
+    ap.add_argument("--fast", nargs="+", default=["0.85:600", "0.9:600", "0.9", "0.95"],
+                    metavar="KEEP[:FIT]",
                     help="fast path settings to measure: sim-ready keep_mass, optionally with "
-                         "fit iterations (e.g. 0.9:600; set VID2SIM_SIMREADY_CACHE to keep the fit)")
+                         "fit iterations (e.g. 0.9:600; the env default is 0.85:600)")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
     args = ap.parse_args()

@@ -13,11 +13,13 @@ import gymnasium
 import numpy as np
 import pytest
 import open3d as o3d
+import torch
 from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import vid2sim.envs  # noqa: F401  (registers the env ids)
-from vid2sim.envs.config import RobotConfig
+from vid2sim.envs import simready
+from vid2sim.envs.config import FastRenderConfig, RobotConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.nav_env import InvalidActionError, NavEnv
 from vid2sim.envs.physics import PhysicsWorld, RobotState
@@ -57,8 +59,12 @@ def _tiny_copy(bundle, out):
     return out
 
 
+FAST = FastRenderConfig(fit_iterations=20)  # the default fit, shorter (test time)
+
+
 def make(registry, task: str = "PointNav", **kw):
     reg, co = registry
+    kw.setdefault("fast", FAST)
     return gymnasium.make(f"vid2sim/{task}-v0", registry=reg.root, scenes=SCENE, checkout_root=co, **kw)
 
 
@@ -121,6 +127,12 @@ def test_fast_fidelity_defaults_shared_set_and_agreement(registry):
     assert 20.0 < psnr < 80.0, psnr  # close to the exact render, not the same image
     with pytest.raises(ValueError, match="fidelity"):
         make(registry, fidelity="approx")
+    cached = list((registry[1] / "simready").glob("simready-*.ply"))  # kept beside the checkouts
+    assert len(cached) == 1
+    simready._CACHE.clear()  # a new process: the set is read back from disk, not made again
+    again = make(registry, training=False, fidelity="fast")
+    again.reset(seed=4)
+    torch.testing.assert_close(again.unwrapped.world.view.sim.model.means, sim.model.means)
 
 
 def test_sweep_check_same_as_substep_queries(registry):

@@ -62,7 +62,8 @@ class FastSplatView:
     def sim(self) -> SimReadySet:
         if self._sim is None:
             a = self.assets
-            self._sim = sim_ready_set(a.content_key(), a.splats, a.walkable, self.conf, self.fast)
+            self._sim = sim_ready_set(a.content_key(), a.splats, a.walkable, self.conf, self.fast,
+                                      cache_dir=a.bundle_dir.parent / "simready")
         return self._sim
 
     def camera(self, world_to_cam: np.ndarray) -> Camera:

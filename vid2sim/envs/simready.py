@@ -5,9 +5,10 @@ per splat through `vid2sim.splats.cpu.FastBatch` (see `splats/cpu/simready.py` a
 `splats/cpu/fastframe.py` for what is traded). The set is measured on `FastRenderConfig.views`
 robot views at the env's camera (random walkable cells, random headings, fixed seed: the same
 set in every process), never on the episode's own views. Envs of one process that load the
-same bundle with the same settings share one set (`_CACHE`); with `VID2SIM_SIMREADY_CACHE`
-set, the set is also written there as a PLY and read back by later processes (worth it when
-`fit_iterations` > 0: the fit costs minutes).
+same bundle with the same settings share one set (`_CACHE`), and the set is written as a PLY
+(named by a hash of the bundle's splats and the settings) to `$VID2SIM_SIMREADY_CACHE`, else to
+`simready/` beside the env's bundle checkouts, and read back by later processes: the default
+600-step fit costs about a minute of one core per scene, paid once.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import uuid
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Optional
@@ -61,12 +63,13 @@ def cache_key(bundle_key: str, conf: CameraConfig, fast: FastRenderConfig) -> st
 
 
 def sim_ready_set(bundle_key: str, model: GaussianModel, grid: WalkableGrid, conf: CameraConfig,
-                  fast: FastRenderConfig) -> SimReadySet:
-    """The scene's sim-ready set for the fast path (memory cache, then disk cache, then made)."""
+                  fast: FastRenderConfig, cache_dir: Optional[Path] = None) -> SimReadySet:
+    """The scene's sim-ready set for the fast path (memory cache, then the disk cache in
+    $VID2SIM_SIMREADY_CACHE or cache_dir (None: none), then made and written there)."""
     key = cache_key(bundle_key, conf, fast)
     if key in _CACHE:
         return _CACHE[key]
-    folder = os.environ.get(CACHE_ENV)
+    folder = os.environ.get(CACHE_ENV) or cache_dir
     path: Optional[Path] = Path(folder) / f"simready-{key}.ply" if folder else None
     if path is not None and path.is_file():
         small = read_ply(path)
@@ -77,8 +80,9 @@ def sim_ready_set(bundle_key: str, model: GaussianModel, grid: WalkableGrid, con
         small, _ = sim_ready(model, cams, SimReadyConfig(
             keep_mass=fast.keep_mass, bake_colour=True, fit_iterations=fast.fit_iterations,
             width=conf.width, height=conf.height), st)
-        if path is not None:
-            write_ply(small, path)
+        if path is not None:  # a unique temporary name: several processes may make it at once
+            tmp = write_ply(small, path.with_name(f"{path.stem}-{os.getpid()}-{uuid.uuid4().hex}.tmp"))
+            os.replace(tmp, path)
     scene = StaticScene(small, StaticSceneConfig(cell_size=fast.cell_size, per_splat_outputs=False))
     _CACHE[key] = SimReadySet(small, FastBatch([scene]), model.num)
     return _CACHE[key]
