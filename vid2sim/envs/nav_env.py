@@ -15,6 +15,9 @@ Env contract
 - Each episode: 0-5 obstacles on the A* corridor (`EnvConfig.obstacles`); SocialNav adds 1-4
   pedestrians (`EpisodeConfig.pedestrians`) stepped once per control step. Augmentation and
   camera jitter are on when `training` (default), off for evaluation (`training=False`).
+- Render fidelity (`EnvConfig.fidelity`): "fast" (default when training: the scene's sim-ready
+  set through the approximate fast kernels, ~30 dB PSNR vs exact on the demo factory scene) or
+  "exact" (default for evaluation); see `envs/config.py` and `envs/simready.py`.
 - info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
   also `episode` (a `metrics.EpisodeRecord`).
 """
