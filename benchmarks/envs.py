@@ -64,8 +64,8 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
         while not done:
             _, _, term, trunc, info = env.step(expert.act(env))
             done = term or trunc
-        records.append(info["episode"])
-        e = info["episode"]
+        records.append(info["nav_episode"])
+        e = info["nav_episode"]
         print(f"  seed {seed}: {e.end}, {e.steps} steps, {e.path_length:.1f} / {e.shortest_length:.1f} m, "
               f"{e.collision_events} collisions", flush=True)
     env.close()

@@ -23,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+import torch  # noqa: E402
 from street_registry import build  # noqa: E402
 
 from vid2sim.training.config import SACConfig, TrainConfig  # noqa: E402
@@ -30,8 +31,8 @@ from vid2sim.training.evaluate import EvalConfig, evaluate  # noqa: E402
 from vid2sim.training.privileged import PRIVILEGED_ID  # noqa: E402
 from vid2sim.training.sac import train  # noqa: E402
 
-PRIV_SAC = SACConfig(learning_starts=2000, batch_size=256, buffer_size=200_000, gradient_steps=2, train_freq=1,
-                     use_sde=True)
+PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, gradient_steps=2, train_freq=1,
+                     use_sde=False, warmup="expert", ent_coef="auto_0.01")
 
 
 def header() -> None:
@@ -49,12 +50,13 @@ def report(name: str, rep, budget: str) -> dict:
 
 def run_privileged(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
-    run = args.root / f"privileged_{args.steps}_h{args.train_max_steps}"
+    run = args.root / f"privileged_{args.steps}_h{args.train_max_steps}_s{args.seed}{args.tag}"
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged",
                          env_kwargs={"training": True, "max_steps": args.train_max_steps},
-                         registry=reg, n_envs=4, n_actors=0, seed=args.seed, checkpoint_every=5000,
-                         sac=replace(PRIV_SAC, net_arch=(256, 256)))
+                         registry=reg, n_envs=args.n_envs, n_actors=0, seed=args.seed, checkpoint_every=5000,
+                         stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
+                                                 learning_starts=args.learning_starts, ent_coef=args.ent_coef))
     result = train(config, progress_bar=False, log_every=2000)
     for row in result.history:
         print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
@@ -97,7 +99,16 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--eval-max-steps", type=int, default=None, help="episode limit in evaluation (default 3000)")
     ap.add_argument("--train-max-steps", type=int, default=600, help="privileged: training episode limit")
+    ap.add_argument("--stuck-steps", type=int, default=10, help="training: end blocked episodes (0 = off)")
+    ap.add_argument("--n-envs", type=int, default=5)
+    ap.add_argument("--sde", action="store_true", help="privileged: gSDE exploration (paper) instead of Gaussian")
+    ap.add_argument("--warmup", default="expert", choices=["expert", "random"], help="privileged: warm-up actions")
+    ap.add_argument("--learning-starts", type=int, default=5000)
+    ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
+    ap.add_argument("--tag", default="")
+    ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: steadier on a shared machine)")
     args = ap.parse_args()
+    torch.set_num_threads(args.threads)
     header()
     {"privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
     print(f"# load after: {os.getloadavg()[0]:.1f}")

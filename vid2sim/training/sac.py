@@ -71,14 +71,15 @@ def write_run_folder(config: TrainConfig) -> Path:
 
 
 def env_specs(config: TrainConfig) -> list[EnvSpec]:
-    base = dict(config.env_kwargs)
+    base, expert = dict(config.env_kwargs), config.sac.warmup == "expert"
     if config.registry:
         base.setdefault("registry", config.registry)
         base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))  # bundles checked out per run
     if config.scene_ids:
         return specs_for_scenes(config.env_id, config.scene_ids, config.n_envs, base, config.seed,
-                                config.env_module)
-    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module) for i in range(config.n_envs)]
+                                config.env_module, stuck_steps=config.stuck_steps, expert=expert)
+    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module, config.stuck_steps, expert)
+            for i in range(config.n_envs)]
 
 
 def make_vec_env(specs: list[EnvSpec], n_actors: int) -> VecEnv:
@@ -110,6 +111,23 @@ def replay_capacity(obs_space: gym.Space, action_space: gym.Space, requested: in
 
 
 # ------------------------------------------------------------------ model
+class WarmupSAC(SAC):
+    """SAC whose warm-up steps (`learning_starts`) can take the scripted expert's actions.
+
+    With `warmup_expert`, every env must expose `expert_action()` (`ExpertActions` wrapper): the
+    replay buffer starts with demonstrations (successes, the +10 reward) instead of uniform random
+    actions. After the warm-up SAC explores with its own policy as usual; saved runs load with `SAC.load`.
+    """
+
+    warmup_expert: bool = False
+
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
+        if self.warmup_expert and self.num_timesteps < learning_starts:
+            actions = np.asarray(self.env.env_method("expert_action"), np.float32)  # [n_envs, 2]
+            return actions, self.policy.scale_action(actions)
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+
 def policy_kwargs(config: TrainConfig, obs_space: gym.Space) -> dict[str, Any]:
     sac = config.sac
     kwargs: dict[str, Any] = {"net_arch": list(sac.net_arch)}
@@ -119,15 +137,24 @@ def policy_kwargs(config: TrainConfig, obs_space: gym.Space) -> dict[str, Any]:
     return kwargs
 
 
+def ent_coef(value: str) -> str | float:
+    """SB3's ent_coef argument: "auto" / "auto_X" stay strings, a number is a fixed coefficient."""
+    return value if str(value).startswith("auto") else float(value)
+
+
 def build_model(config: TrainConfig, env: VecEnv) -> SAC:
     sac = config.sac
     capacity = replay_capacity(env.observation_space, env.action_space, sac.buffer_size, sac.memory_fraction)
     policy = "MultiInputPolicy" if isinstance(env.observation_space, gym.spaces.Dict) else "MlpPolicy"
-    return SAC(policy, env, learning_rate=sac.learning_rate, buffer_size=capacity, batch_size=sac.batch_size,
-               tau=sac.tau, gamma=sac.gamma, learning_starts=sac.learning_starts, train_freq=sac.train_freq,
-               gradient_steps=sac.gradient_steps, use_sde=sac.use_sde, sde_sample_freq=sac.sde_sample_freq,
-               use_sde_at_warmup=sac.use_sde_at_warmup, policy_kwargs=policy_kwargs(config, env.observation_space),
-               tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
+    model = WarmupSAC(policy, env, learning_rate=sac.learning_rate, buffer_size=capacity,
+                      batch_size=sac.batch_size, tau=sac.tau, gamma=sac.gamma, ent_coef=ent_coef(sac.ent_coef),
+                      learning_starts=sac.learning_starts, train_freq=sac.train_freq,
+                      gradient_steps=sac.gradient_steps, use_sde=sac.use_sde, sde_sample_freq=sac.sde_sample_freq,
+                      use_sde_at_warmup=sac.use_sde_at_warmup,
+                      policy_kwargs=policy_kwargs(config, env.observation_space),
+                      tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
+    model.warmup_expert = sac.warmup == "expert"
+    return model
 
 
 # ------------------------------------------------------------------ callbacks
@@ -210,7 +237,7 @@ class TrainResult:
 
 
 def load_for_resume(run: Path, env: VecEnv) -> SAC:
-    model = SAC.load(run / "checkpoints" / "last.zip", env=env, device="cpu")
+    model = WarmupSAC.load(run / "checkpoints" / "last.zip", env=env, device="cpu")
     replay = run / "checkpoints" / "replay.pkl"
     if replay.exists():
         model.load_replay_buffer(replay)
