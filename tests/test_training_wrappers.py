@@ -69,6 +69,17 @@ def test_pressing_into_a_wall_is_stuck_and_the_wrapper_ends_it(street_registry, 
     assert len(rewards) < 15 and rec.steps == len(rewards)
 
 
+def test_standing_still_is_stuck_too(street_registry, tmp_path):
+    env = StuckTermination(gym.make(PRIVILEGED_ID, registry=str(street_registry), scenes=SCENE, training=False,
+                                    checkout_root=str(tmp_path)), steps=6)
+    env.reset(seed=1)
+    for k in range(1, 10):
+        *_, terminated, truncated, info = env.step(np.array([-0.5, 0.3], np.float32))  # speed <= 0: stop
+        if terminated or truncated:
+            break
+    assert k == 6 and terminated and info["end"] == STUCK and not info["collided"]
+
+
 def test_nav_episode_key_leaves_episode_to_sb3_monitor(street_registry, tmp_path):
     env = Monitor(gym.make(PRIVILEGED_ID, registry=str(street_registry), scenes=SCENE, training=False,
                            checkout_root=str(tmp_path), max_steps=5))

@@ -6,7 +6,10 @@ paper's crash penalty (-1) plus the time penalty (-0.1) every step until the ste
 -660 (600-step horizon) to -3300 (3000 steps) tail that dwarfs the +10 success reward and the
 ~+20 distance reward of a whole successful episode and swamps the critic's targets. The wrapper
 ends such an episode as a failure (the paper's -10 terminal reward, `terminated`, end "stuck")
-once the robot has been in contact without moving for `steps` consecutive control steps.
+once the robot has not moved (< `min_move` m per control step) for `steps` consecutive control steps.
+Standing still counts too: without it, stopping (-0.1 per step, bootstrapped over a long horizon)
+looks safer to a young critic than driving past walls (-10 per crash), and SAC learns to freeze
+(observed: speed < 0, i.e. stopped, on every held-out episode after 10-40k steps).
 
 `ExpertActions`: the scripted expert's action on demand (warm-up demonstrations for SAC).
 """
@@ -25,7 +28,7 @@ STUCK = "stuck"
 
 
 class StuckTermination(gym.Wrapper):
-    """Terminates (failure reward) after `steps` consecutive collided steps with < `min_move` m of motion."""
+    """Terminates (failure reward) after `steps` consecutive control steps with < `min_move` m of motion."""
 
     def __init__(self, env: gym.Env, steps: int = 10, min_move: float = 0.02) -> None:
         super().__init__(env)
@@ -44,7 +47,7 @@ class StuckTermination(gym.Wrapper):
         pose = u.robot_pose()[:2]
         moved = math.hypot(pose[0] - self.pose[0], pose[1] - self.pose[1])
         self.pose = pose
-        self.count = self.count + 1 if info.get("collided") and moved < self.min_move else 0
+        self.count = self.count + 1 if moved < self.min_move else 0
         if self.count >= self.steps and not (terminated or truncated):
             reward += u.config.reward.failure
             terminated = True
