@@ -66,7 +66,7 @@ def run_privileged(args) -> None:
                          registry=reg, n_envs=args.n_envs, n_actors=0, seed=args.seed, checkpoint_every=5000,
                          stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
                                                  learning_starts=args.learning_starts, ent_coef=args.ent_coef,
-                                                 gradient_steps=args.gradient_steps,
+                                                 gradient_steps=args.gradient_steps, bc_weight=args.bc_weight,
                                                  net_arch=tuple(int(n) for n in args.net.split(","))))
     cpu0 = time.process_time()
     result = train(config, progress_bar=False, log_every=2000)
@@ -146,9 +146,55 @@ def run_pixel(args) -> None:
                                  f"{cpu:.0f} s CPU")
 
 
+def run_heldout(args) -> None:
+    """Held-out SR / SPL / Cost of every `checkpoints/step_N.zip` of `--runs` (privileged env, eval protocol)."""
+    reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
+    for run in args.runs:
+        ckpts = sorted((run / "checkpoints").glob("step_*.zip"), key=lambda p: int(p.stem.split("_")[1]))
+        for ckpt in ckpts[::args.every]:
+            rep = evaluate(EvalConfig(registry=reg, policy=str(ckpt), trials=args.trials, env_id=PRIVILEGED_ID,
+                                      checkout_root=str(args.root / "checkouts")))
+            report(f"{run.name}/{ckpt.stem}", rep, f"{ckpt.stem.split('_')[1]} env steps")
+
+
+# ------------------------------------------------------------------ curves
+def tb_curve(run: Path) -> dict[str, list[tuple[int, float]]]:
+    """(env step, value) series of training success and return from a run's TensorBoard logs."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+    out: dict[str, list[tuple[int, float]]] = {"nav/success": [], "rollout/ep_return_mean": []}
+    for folder in sorted((run / "tb").iterdir()):
+        acc = EventAccumulator(str(folder))
+        acc.Reload()
+        for tag in out:
+            if tag in acc.Tags()["scalars"]:
+                out[tag] += [(e.step, e.value) for e in acc.Scalars(tag)]
+    return out
+
+
+def run_curve(args) -> None:
+    """PNG of training success and return (last-100-episode means) against env steps for `--runs`."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    for run in args.runs:
+        curve = tb_curve(run)
+        for ax, tag in zip(axes, curve):
+            steps, values = zip(*curve[tag]) if curve[tag] else ((), ())
+            ax.plot(steps, values, label=run.name)
+    for ax, title in zip(axes, ("training success (last 100 episodes)", "training return (last 100 episodes)")):
+        ax.set_xlabel("env steps")
+        ax.set_title(title, fontsize=10)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(args.out, dpi=110)
+    print(f"wrote {args.out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("what", choices=["sanity", "privileged", "pixel", "baselines"])
+    ap.add_argument("what", choices=["sanity", "privileged", "pixel", "baselines", "curve", "heldout"])
     ap.add_argument("--root", type=Path, default=Path("/tmp/training-streets"))
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--trials", type=int, default=25)
@@ -161,15 +207,19 @@ def main() -> None:
     ap.add_argument("--warmup", default="expert", choices=["expert", "random"], help="privileged: warm-up actions")
     ap.add_argument("--learning-starts", type=int, default=5000)
     ap.add_argument("--gradient-steps", type=int, default=5, help="privileged: per vector step (5 envs: UTD 1)")
+    ap.add_argument("--bc-weight", type=float, default=0.0, help="privileged: BC actor steps on the demonstrations")
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
     ap.add_argument("--tag", default="")
+    ap.add_argument("--runs", type=Path, nargs="*", default=[], help="curve: run folders")
+    ap.add_argument("--every", type=int, default=1, help="heldout: every k-th checkpoint")
+    ap.add_argument("--out", type=Path, default=Path("learning_curve.png"), help="curve: PNG path")
     ap.add_argument("--privileged", action="store_true", help="baselines: on the privileged env (same episodes)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: steadier on a shared machine)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     header()
-    {"sanity": run_sanity, "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
+    {"heldout": run_heldout, "curve": run_curve, "sanity": run_sanity, "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
     print(f"# load after: {os.getloadavg()[0]:.1f}")
 
 

@@ -110,20 +110,23 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
     assert frame.std() > 5  # the camera view and the map, not a blank frame
 
 
-@pytest.mark.parametrize("warmup", ["expert", "random"])
-def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_registry, tmp_path, warmup):
-    run = tmp_path / warmup
+@pytest.mark.parametrize("warmup,bc_weight", [("expert", 0.0), ("random", 0.0), ("expert", 1.0)])
+def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_registry, tmp_path, warmup, bc_weight):
+    run = tmp_path / f"{warmup}{bc_weight}"
     sac = SACConfig(learning_starts=80, batch_size=16, buffer_size=200, net_arch=(16, 16), use_sde=False,
-                    warmup=warmup)
-    config = TrainConfig(run_dir=str(run), total_steps=80, env_id=PRIVILEGED_ID,
+                    warmup=warmup, bc_weight=bc_weight)
+    total = 100 if bc_weight else 80  # with BC: 20 steps of SAC + BC updates after the warm-up
+    config = TrainConfig(run_dir=str(run), total_steps=total, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged", registry=str(street_registry),
                          scene_ids=[SCENE], env_kwargs={"training": True}, n_envs=2, n_actors=0,
-                         stuck_steps=10, save_replay_buffer=True, checkpoint_every=80, sac=sac)
-    train(config, progress_bar=False, log_every=40)
+                         stuck_steps=10, save_replay_buffer=True, checkpoint_every=total, sac=sac)
+    result = train(config, progress_bar=False, log_every=40)
+    assert result.num_timesteps == total
     model = SAC.load(run / "final.zip", device="cpu")
     model.load_replay_buffer(run / "checkpoints" / "replay.pkl")
-    actions = model.replay_buffer.actions[:model.replay_buffer.pos].reshape(-1, 2)  # [80, 2]
-    rewards = model.replay_buffer.rewards[:model.replay_buffer.pos].ravel()
+    warm = 80 // config.n_envs  # buffer rows written during the warm-up
+    actions = model.replay_buffer.actions[:warm].reshape(-1, 2)  # [80, 2]
+    rewards = model.replay_buffer.rewards[:warm].ravel()
     if warmup == "expert":  # pure pursuit: speed in [0.3, 1], drives towards the goal
         assert actions[:, 0].min() >= 0.3 - 1e-6 and rewards.mean() > 0
     else:  # uniform random: half the speed commands are below zero (standing still)

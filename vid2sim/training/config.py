@@ -30,6 +30,7 @@ class SACConfig:
     net_arch: tuple[int, ...] = (256, 256)
     warmup: str = "random"  # actions during learning_starts: "random" (SB3; gSDE samples with use_sde_at_warmup)
     # or "expert": scripted A* demonstrations fill the replay buffer first (small-budget presets)
+    bc_weight: float = 0.0  # with warmup="expert": behaviour-cloning actor steps on those demonstrations
 
 
 @dataclass
