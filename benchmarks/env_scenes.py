@@ -1,6 +1,11 @@
 """Real factory scenes for the env render benchmark, built once and cached outside the repo.
 
-    .venv/bin/python benchmarks/env_scenes.py [demo] [gopro]   # build (or find) the cached bundles
+    .venv/bin/python benchmarks/env_scenes.py [demo] [gopro] [--refresh]   # build (or find) the cached bundles
+
+`--refresh` ingests again into the same work folder: the stage cache keeps every stage whose
+key is unchanged and reruns the rest (e.g. a new walkable-stage version), committing the new
+bundle; it prints the registry root and scene id for `benchmarks/envs.py --factory ROOT ID`, and
+how far the cells the envs may put the robot on stay from collision surface in the robot's band.
 
 `demo`: the `make demo` street (synthetic 10 s 854x480 video -> fast-preset ingest).
 `gopro`: the shared GoPro MAX sidewalk clip (`../shared/data`, skipped when absent).
@@ -42,10 +47,11 @@ def _ingest(name: str, video: str, licence: str, capture_height: float) -> Path:
     return Path(res.context["bundle_dir"])
 
 
-def build(name: str) -> Optional[Path]:
-    """Build scene `name` ('demo' or 'gopro') once; returns its bundle folder (None: no data)."""
+def build(name: str, refresh: bool = False) -> Optional[Path]:
+    """Build scene `name` ('demo' or 'gopro') once; returns its bundle folder (None: no data).
+    refresh: ingest again (cached stages are kept, changed ones rerun)."""
     hit = find_bundle(name)
-    if hit is not None:
+    if hit is not None and not refresh:
         return hit
     t0 = time.perf_counter()
     if name == "demo":
@@ -53,7 +59,9 @@ def build(name: str) -> Optional[Path]:
         from vid2sim.factory.synthetic.make_street import main as make_street
 
         street = street_preset("demo", seed=0)
-        video = make_street(street, CACHE / name / "synthetic") / "video.mp4"
+        video = CACHE / name / "synthetic" / "video.mp4"
+        if not video.is_file():
+            video = make_street(street, CACHE / name / "synthetic") / "video.mp4"
         out = _ingest(name, str(video), "CC0-synthetic", street.capture_height)
     elif name == "gopro":
         if not GOPRO.is_file():
@@ -66,6 +74,43 @@ def build(name: str) -> Optional[Path]:
     return out
 
 
+def agreement(bundle: Path) -> str:
+    """Map vs physics: the smallest horizontal distance from a cell the envs may put the robot
+    on (planner map) to collision-mesh surface inside the robot box's height band."""
+    import numpy as np
+    import trimesh
+    from scipy.spatial import cKDTree
+
+    from vid2sim.envs.config import EpisodeConfig, RobotConfig
+    from vid2sim.envs.planning import GridPlanner
+    from vid2sim.envs.scenes import walkable_inflation
+    from vid2sim.factory.geometry.surface_sampling import points_by_spacing
+    from vid2sim.formats.scene import read_scene_json
+    from vid2sim.formats.walkable import load_walkable
+
+    robot, clearance = RobotConfig(), EpisodeConfig().clearance
+    pre = walkable_inflation(read_scene_json(bundle / "scene.json"))
+    planner = GridPlanner(load_walkable(bundle / "walkable.npz"), clearance=max(clearance - pre, 0.0))
+    rows, cols = np.nonzero(planner.free)
+    mesh = trimesh.load(bundle / "collision.ply", force="mesh", process=False)
+    pts = points_by_spacing(np.asarray(mesh.vertices), np.asarray(mesh.faces), 0.02)  # [P, 3]
+    lo, hi = robot.ground_clearance, robot.ground_clearance + robot.height
+    band = pts[(pts[:, 2] >= lo) & (pts[:, 2] <= hi)]
+    d = cKDTree(band[:, :2]).query(planner.to_world(rows, cols))[0] if len(band) else [np.inf]
+    return (f"{len(rows)} planner cells; nearest collision surface in the robot's {lo:.2f}-{hi:.2f} m "
+            f"band: {np.min(d):.3f} m (robot half-width {robot.width / 2:.2f} m)")
+
+
+def scene_id(bundle: Path) -> str:
+    import json
+
+    return json.loads((bundle / "scene.json").read_text())["scene_id"]
+
+
 if __name__ == "__main__":
-    for n in sys.argv[1:] or ["demo", "gopro"]:
-        print(n, build(n))
+    names = [a for a in sys.argv[1:] if not a.startswith("--")] or ["demo", "gopro"]
+    for n in names:
+        b = build(n, refresh="--refresh" in sys.argv)
+        print(n, b, "" if b is None else f"--factory {CACHE / n / 'registry'} {scene_id(b)}")
+        if b is not None:
+            print(f"{n} map vs physics: {agreement(b)}")

@@ -7,13 +7,14 @@ obstacles per episode. Speed: one numba thread (one core), the expert driving, r
 time split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward.
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
-       [--registry ROOT --scene ID] [--skip-gt]
+       [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
 """
 
 from __future__ import annotations
 
 import argparse
 import sys
+from collections import Counter
 import tempfile
 import time
 from pathlib import Path
@@ -55,8 +56,9 @@ def make(root: str, scene: str, task: str = "PointNav", variant: str = "rgb", **
 
 
 def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
+    """Summary of the scripted expert's episodes and the count of each episode end."""
     env = make(root, scene, training=False, reward=RewardConfig(max_steps=max_steps))
-    expert, records = PurePursuitExpert(), []
+    expert, records, ends = PurePursuitExpert(), [], Counter()
     for seed in range(episodes):
         env.reset(seed=seed)
         expert.reset(env)
@@ -66,10 +68,14 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
             done = term or trunc
         records.append(info["nav_episode"])
         e = info["nav_episode"]
+        ends[e.end] += 1
+        ends["obstacles"] += len(env.unwrapped.actors.obstacle_xy())
+        x, y, _ = env.unwrapped.robot_pose()
         print(f"  seed {seed}: {e.end}, {e.steps} steps, {e.path_length:.1f} / {e.shortest_length:.1f} m, "
-              f"{e.collision_events} collisions", flush=True)
+              f"{e.collision_events} collisions, {len(env.unwrapped.actors.obstacle_xy())} obstacles, "
+              f"ended at ({x:.2f}, {y:.2f})", flush=True)
     env.close()
-    return summarize(records)
+    return summarize(records), ends
 
 
 def speed(root: str, scene: str, task: str, variant: str, steps: int) -> tuple[float, dict]:
@@ -105,7 +111,10 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--registry", default=None)
     ap.add_argument("--scene", default=None)
+    ap.add_argument("--factory", nargs=2, action="append", default=[], metavar=("ROOT", "ID"),
+                    help="another registry scene (repeatable), e.g. the GoPro factory scene")
     ap.add_argument("--skip-gt", action="store_true")
+    ap.add_argument("--no-speed", action="store_true", help="only the expert table")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
     args = ap.parse_args()
@@ -113,21 +122,27 @@ def main() -> None:
     print(hardware_line())
     print("command:", " ".join([Path(sys.executable).name] + sys.argv), "| numba threads: 1")
     scenes: list[tuple[str, str, str]] = []
-    if args.registry and args.scene:
-        n = Registry(args.registry).show(args.scene).num_splats
-        scenes.append((args.registry, args.scene, f"{args.scene} (factory, {n // 1000}k splats)"))
+    pairs = ([(args.registry, args.scene)] if args.registry and args.scene else []) + args.factory
+    for root, sid in pairs:
+        n = Registry(root).show(sid).num_splats
+        scenes.append((root, sid, f"{sid} (factory, {n // 1000}k splats)"))
     if not args.skip_gt:
         tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-envs-"))
-        for root, sid in gt_registry(tmp, (75_000, 200_000)):
+        for root, sid in gt_registry(tmp, (75_000,) if args.no_speed else (75_000, 200_000)):
             scenes.append((root, sid, f"{sid} (synthetic GT bundle)"))
     print(f"\nscripted expert, PointNav, 0-5 obstacles, evaluation mode, {args.episodes} episodes, "
           f"limit {args.max_steps} steps")
-    print("| scene | SR | SPL | Cost | SNS |\n|---|---|---|---|---|")
+    print("| scene | SR | SPL | Cost | SNS | obstacles / episode | episode ends |\n|---|---|---|---|---|---|---|")
     for root, sid, label in scenes:
         if "200k" in sid:
             continue  # same street as the 75k bundle: the expert does not look at the splats
-        s = expert_table(root, sid, args.episodes, args.max_steps)
-        print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} |", flush=True)
+        s, ends = expert_table(root, sid, args.episodes, args.max_steps)
+        n_obs = ends.pop("obstacles", 0) / max(s.episodes, 1)
+        why = ", ".join(f"{k} {n}" for k, n in ends.most_common())
+        print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} | {n_obs:.1f} | {why} |",
+              flush=True)
+    if args.no_speed:
+        return
     print(f"\nenv steps/s on one core ({args.steps} steps, expert actions, training mode), "
           "ms per step by part")
     print("| scene | task / obs | steps/s | " + " | ".join(PARTS) + " | other |")

@@ -1,7 +1,7 @@
 """Learnability at CPU budgets (issue 13): privileged agent, pixel agent, baselines, a tiny study.
 
     python benchmarks/learning.py sanity --trials 20    # scripted policies' returns under the reward
-    python benchmarks/learning.py privileged --steps 50000 [--root /tmp/training-streets]
+    python benchmarks/learning.py privileged --steps 40000 [--warmup random --bc-weight 0] [--root ...]
     python benchmarks/learning.py pixel --steps 3000
     python benchmarks/learning.py baselines --trials 25
     (study: vid2sim study --registry ROOT/registry --counts 1,3 --seeds 2 --env privileged ...)
@@ -41,7 +41,8 @@ from vid2sim.training.sac import train  # noqa: E402
 from vid2sim.training.wrappers import StuckTermination  # noqa: E402
 
 PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, gradient_steps=5, train_freq=1,
-                     use_sde=False, warmup="expert", ent_coef="auto_0.01", net_arch=(128, 128))
+                     use_sde=False, warmup="expert", ent_coef="auto_0.01", net_arch=(128, 128),
+                     bc_weight=1.0)  # run k of README (best held-out SR here: 0.32 at 40k env steps)
 
 
 def header() -> None:
@@ -207,7 +208,7 @@ def main() -> None:
     ap.add_argument("--warmup", default="expert", choices=["expert", "random"], help="privileged: warm-up actions")
     ap.add_argument("--learning-starts", type=int, default=5000)
     ap.add_argument("--gradient-steps", type=int, default=5, help="privileged: per vector step (5 envs: UTD 1)")
-    ap.add_argument("--bc-weight", type=float, default=0.0, help="privileged: BC actor steps on the demonstrations")
+    ap.add_argument("--bc-weight", type=float, default=1.0, help="privileged: BC actor steps on the demonstrations")
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
     ap.add_argument("--tag", default="")

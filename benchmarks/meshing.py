@@ -44,7 +44,7 @@ from vid2sim.factory.synthetic.config import preset
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street
 from vid2sim.factory.synthetic.trajectory import walking_poses
-from vid2sim.factory.geometry.walkable import WalkableConfig, walkable_map
+from vid2sim.factory.geometry.walkable import WalkableConfig, physical_layer
 from vid2sim.formats.walkable import WalkableGrid
 
 
@@ -85,9 +85,10 @@ def run(args) -> dict:
     res = build_meshes(views, mconf)
     t_mesh = time.perf_counter() - t0
     t0 = time.perf_counter()
-    wm = walkable_map(res.ground_points, res.collision, T[:, :3, 3], wconf)
+    layer = physical_layer(res.ground_points, res.collision, T[:, :3, 3], wconf)
+    wm, collision = layer.walkable, (layer.vertices, layer.faces)  # what the bundle ships
     t_walk = time.perf_counter() - t0
-    rec = sample_surface(*mesh_arrays(res.collision), 200_000)
+    rec = sample_surface(*mesh_arrays(collision), 200_000)
     gv = np.concatenate(gt_vis)
     gt_ng = sample_surface(*scene.without_ground(), 400_000, seed=1)
     acc = chamfer_points(rec, gt_ng).a_to_b
@@ -105,30 +106,35 @@ def run(args) -> dict:
     return dict(preset=args.preset, views=len(T), width=W, height=H, noise=args.noise,
                 render_s=round(t_render, 2), mesh_s=round(t_mesh, 2),
                 fuse_ms_per_view=round(1000 * res.summary["fuse_seconds"] / len(T), 1),
-                walkable_s=round(t_walk, 2), collision_faces=res.summary["collision_faces"],
+                walkable_s=round(t_walk, 2), collision_faces=len(layer.faces), step_m=round(layer.step_m, 3),
                 visual_faces=res.summary["visual_faces"],
                 accuracy_m=round(acc, 4), completeness_visible_m=round(comp, 4),
                 chamfer_m=round((acc + comp) / 2, 4),
                 walkable_iou=round(grid_iou(wm_crop, gt_crop), 4), iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
                 walkable_area_m2=round(wm.area_m2(), 2), variant=args.variant,
-                **corridor_check(wm, res.collision, T[:, :3, 3]).to_dict())
+                **corridor_check(wm, collision, T[:, :3, 3]).to_dict())
 
 
 NO_CULL = dict(cov_cull_alpha=None)
+# before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
+OLD = dict(trim_collision=False, exact_inflation=False)
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
     "baseline (fuse every pixel, no ground growth)": (
-        dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0), NO_CULL),
-    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0), NO_CULL),
-    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0), NO_CULL),
-    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0), NO_CULL),
-    "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), {}, NO_CULL),
-    "+ growth + body carving + walked ground + cov. culling 1e-3 (default)": (dict(carve=CarveConfig()), {}, {}),
-    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), {}, NO_CULL),
-    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), {}, NO_CULL),
+        dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), OLD, NO_CULL),
+    "+ growth + body carving + walked ground + cov. culling 1e-3": (dict(carve=CarveConfig()), OLD, {}),
+    "+ collision trimmed below the step (physical layer, default)": (dict(carve=CarveConfig()), {}, {}),
+    "default without trimming (exact inflation only)": (dict(carve=CarveConfig()), dict(trim_collision=False), {}),
+    "default + obstacle bases kept (0.1 m)": (dict(carve=CarveConfig()), dict(base_radius_m=0.1), {}),
+    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), OLD, NO_CULL),
+    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), OLD, NO_CULL),
     "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
-    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2, cov_cull_alpha=None)),
+    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig()), OLD, dict(min_opacity=0.2, cov_cull_alpha=None)),
 }
-DEFAULT_VARIANT = "+ growth + body carving + walked ground + cov. culling 1e-3 (default)"
+DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
 
 def find_clip(work: Path) -> Path:
@@ -168,13 +174,17 @@ def run_from_splats(args) -> list[dict]:
         t0 = time.perf_counter()
         res = build_meshes(views, mconf)
         t_mesh = time.perf_counter() - t0
-        wm = walkable_map(res.ground_points, res.collision, src, wconf)
+        t0 = time.perf_counter()
+        layer = physical_layer(res.ground_points, res.collision, src, wconf)
+        t_walk = time.perf_counter() - t0
+        wm, collision = layer.walkable, (layer.vertices, layer.faces)  # what the bundle ships
         row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),
                    mesh_s=round(t_mesh, 2), carve_s=res.summary.get("carve_seconds", 0.0),
-                   collision_faces=res.summary["collision_faces"],
-                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, res.collision, src).to_dict())
+                   walkable_s=round(t_walk, 2), step_m=round(layer.step_m, 3),
+                   collision_faces=len(layer.faces),
+                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, collision, src).to_dict())
         if synth is not None:
-            err = scene_errors(clip, synth, res.collision, wm, wconf.robot_radius_m, args.unseen_m)
+            err = scene_errors(clip, synth, collision, wm, wconf.robot_radius_m, args.unseen_m)
             row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -186,7 +196,8 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("near_path_accuracy_median_m", "acc. median <5 m"),
               ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
-              ("mesh_s", "meshing s"), ("carve_s", "of which carving s")]
+              ("step_m", "step m"), ("mesh_s", "meshing s"), ("carve_s", "of which carving s"),
+              ("walkable_s", "physical layer s")]
 
 
 def print_table(rows: list[dict]) -> None:

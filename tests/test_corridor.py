@@ -79,15 +79,14 @@ def test_pipeline_gate_writes_the_report_and_names_the_reason(tmp_path):
     from vid2sim.factory.runtime.pipeline import check_corridor
     from vid2sim.factory.runtime.stage_cache import StageError
 
-    mesh_dir, walk_dir = tmp_path / "meshing", tmp_path / "walkable"
-    mesh_dir.mkdir()
+    walk_dir = tmp_path / "walkable"
     walk_dir.mkdir()
     open_grid().save(walk_dir / "walkable.npz")
-    wall(2.0, 0.6, 1.0, 0.0, 1.0).export(mesh_dir / "collision.ply")
-    out = check_corridor(CorridorConfig(), mesh_dir, walk_dir, PATH)
+    wall(2.0, 0.6, 1.0, 0.0, 1.0).export(walk_dir / "collision.ply")  # the physical layer's mesh
+    out = check_corridor(CorridorConfig(), walk_dir, PATH)
     assert out["passed"] and out["walkable_fraction"] == 1.0
-    wall(2.0, -1.0, 1.0, 0.0, 1.0).export(mesh_dir / "collision.ply")
+    wall(2.0, -1.0, 1.0, 0.0, 1.0).export(walk_dir / "collision.ply")
     with pytest.raises(StageError) as e:
-        check_corridor(CorridorConfig(gate_max_area_m2=0.05), mesh_dir, walk_dir, PATH)
+        check_corridor(CorridorConfig(gate_max_area_m2=0.05), walk_dir, PATH)
     assert e.value.reason == "corridor_obstructed"
     assert '"passed": false' in (walk_dir / "corridor.json").read_text()

@@ -137,3 +137,11 @@ def test_roadworks_narrow_the_corridor_but_leave_the_path_open() -> None:
     assert occ.sum(0)[60:80].min() > 0  # the barriers cover the zone's side
     sides = {np.sign(p.xy[1]) for p in zone}
     assert len(sides) == 1
+
+
+def test_a_thin_pole_between_cell_centres_still_occupies_cells() -> None:
+    pole = make_obstacle("pole", np.random.default_rng(3))  # radius 0.043 m (poles: 0.04-0.07)
+    assert pole.radius < 0.05
+    # at (0.1, 0.1): the corner of four 0.1 m cells, no cell centre within its radius
+    occ = occupancy([Placement(pole, (0.1, 0.1))], origin=(-1.0, -1.0), resolution=0.1, shape=(20, 20))
+    assert occ.sum() >= 4 and occ[10:12, 10:12].all()

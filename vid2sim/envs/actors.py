@@ -36,12 +36,17 @@ class EpisodeActors:
         self.expert_path: Optional[np.ndarray] = None  # [K, 2]
 
     def spawn(self, grid: WalkableGrid, planner: GridPlanner, path: np.ndarray, rng: np.random.Generator,
-              obstacles: ObstacleConfig, pedestrians: int) -> None:
-        """Place this episode's actors (call `remove` first when re-using the client)."""
+              obstacles: ObstacleConfig, pedestrians: int, pre_inflated: float = 0.0) -> None:
+        """Place this episode's actors (call `remove` first when re-using the client).
+
+        pre_inflated: metres the scene's map was already shrunk by (a factory map is inflated by
+        its robot radius, so `planner.clearance` is smaller there); the obstacles placed here
+        are not in that map, so their footprints get it added back: the expert keeps the same
+        distance from an obstacle on a factory scene as on a ground-truth one."""
         placements = place_on_corridor(path, rng, obstacles, is_walkable=planner.is_free)
         start, goal = (float(path[0, 0]), float(path[0, 1])), (float(path[-1, 0]), float(path[-1, 1]))
         while True:
-            route = self._route(grid, planner.clearance, placements, start, goal)
+            route = self._route(grid, planner.clearance, placements, start, goal, pre_inflated)
             if route is not None or not placements:
                 break
             placements = placements[:-1]
@@ -52,12 +57,14 @@ class EpisodeActors:
 
     @staticmethod
     def _route(grid: WalkableGrid, clearance: float, placements: Sequence[Placement],
-               start: tuple[float, float], goal: tuple[float, float]) -> Optional[np.ndarray]:
+               start: tuple[float, float], goal: tuple[float, float], pre_inflated: float = 0.0
+               ) -> Optional[np.ndarray]:
         """A* path around the static obstacles' footprints, or None when they block the way."""
         static = [p for p in placements if not p.dynamic]
         occ = occupancy(static, grid.origin, grid.resolution, grid.grid.shape)  # [H, W] bool
-        if occ.any():  # footprints grown by the margin
-            occ = ndimage.distance_transform_edt(~occ) <= OBSTACLE_MARGIN / grid.resolution
+        if occ.any():  # footprints grown by the margin (+ what the map's obstacles already got)
+            grow = OBSTACLE_MARGIN + max(pre_inflated, 0.0)
+            occ = ndimage.distance_transform_edt(~occ) <= grow / grid.resolution
         blocked = WalkableGrid((grid.grid > 0) & ~occ, grid.origin, grid.resolution)
         return GridPlanner(blocked, clearance=clearance).plan(start, goal)
 

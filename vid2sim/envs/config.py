@@ -38,8 +38,11 @@ class RobotConfig:
     length: float = 0.9  # m, footprint box
     width: float = 0.6  # m
     height: float = 0.6  # m
-    ground_clearance: float = 0.15  # m, box bottom above z = 0 (kerbs and ground-level mesh
-    # remnants below it are the walkable map's business, as the factory's 0.1 m obstacle floor)
+    ground_clearance: float = 0.15  # m, box bottom above z = 0. Factory scenes agree with it
+    # by construction: the physical layer (factory/geometry/walkable.py) drops collision geometry
+    # lower than its step (0.1 m, raised to the ground noise) and blocks the map under every
+    # other face below 1.8 m, so no walkable cell has mesh in this box's band; kerb drops are
+    # blocked on the map (leaving it ends the episode)
 
     @property
     def max_steer(self) -> float:

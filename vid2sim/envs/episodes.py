@@ -1,5 +1,8 @@
 """Episode sampling: start and goal on the walkable map joined by an A* path of a given length.
 
+A random start from which no goal lies far enough (the middle of a narrow map whose longest
+path is close to the range's lower end) is moved to the farthest point from it.
+
 Geodesic range: 10-30 m (the paper) when the map's longest A* path allows, else from 70 % of
 the longest path up to it, never below 5 m (the paper's real-world range): a map whose longest
 path is shorter than 5 m is refused with `SceneError("map_too_small")`.
@@ -65,6 +68,9 @@ def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[f
     for _ in range(MAX_TRIES):
         start = planner.sample_free(rng)
         d = planner.distance_field(start)  # [H, W] m
+        if not np.any(np.isfinite(d) & (d >= lo)):  # a start in the middle of a narrow map:
+            start = _farthest(planner, d, rng)  # restart from the far end (a double sweep)
+            d = planner.distance_field(start)
         rows, cols = np.nonzero((d >= lo) & (d <= 1.1 * hi))  # the smoothed path is shorter
         if len(rows) == 0:
             continue
@@ -77,6 +83,13 @@ def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[f
                        path_length(path))
     raise SceneError("no_episode", f"scene {scene_id!r}: no start/goal pair with a {lo:.1f}-"
                      f"{hi:.1f} m A* path in {MAX_TRIES} tries")
+
+
+def _farthest(planner: GridPlanner, d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
+    """A random point in the cell farthest (geodesic distance field d [H, W]) from a start."""
+    far = np.unravel_index(np.argmax(np.where(np.isfinite(d), d, -1.0)), d.shape)
+    p = planner.to_world(*far) + rng.uniform(-0.4, 0.4, size=2) * planner.resolution
+    return float(p[0]), float(p[1])
 
 
 def _start_yaw(path: np.ndarray, rng: np.random.Generator, conf: EpisodeConfig) -> float:

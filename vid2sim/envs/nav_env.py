@@ -112,7 +112,8 @@ class NavEnv(gym.Env):
         lo, hi = c.episode.pedestrians
         peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
         self.actors = EpisodeActors(self.world.physics.client)
-        self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds)
+        self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds,
+                          pre_inflated=self.world.assets.walkable_inflation)
         self.shortest = path_length(self.actors.expert_path)
         self.augmenter.reset(rng)
         self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)

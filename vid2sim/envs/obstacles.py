@@ -404,7 +404,8 @@ def roadworks(path: np.ndarray, rng: np.random.Generator, s: float, length: floa
 
 def occupancy(placements: Sequence[Placement], origin: Sequence[float], resolution: float,
               shape: tuple[int, int]) -> np.ndarray:
-    """Grid cells [H, W] bool (walkable-grid convention) covered by the obstacles' footprints."""
+    """Grid cells [H, W] bool (walkable-grid convention) that the obstacles' footprint boxes
+    overlap (grown by half a cell: a 0.1 m pole between four cell centres still occupies them)."""
     rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
     cx = origin[0] + (cols + 0.5) * resolution  # [H, W]
     cy = origin[1] + (rows + 0.5) * resolution
@@ -414,6 +415,6 @@ def occupancy(placements: Sequence[Placement], origin: Sequence[float], resoluti
         c, s = math.cos(p.yaw), math.sin(p.yaw)
         dx, dy = cx - p.xy[0], cy - p.xy[1]
         lx, ly = c * dx + s * dy, -s * dx + c * dy  # cell centres in the obstacle frame
-        lo, hi = verts.min(0), verts.max(0)
+        lo, hi = verts.min(0) - resolution / 2, verts.max(0) + resolution / 2
         occ |= (lx >= lo[0]) & (lx <= hi[0]) & (ly >= lo[1]) & (ly <= hi[1])
     return occ

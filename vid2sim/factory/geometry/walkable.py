@@ -1,25 +1,36 @@
-"""Walkable map: seen ground minus the inflated obstacle footprint, path component only.
+"""Physical layer: the walkable map and the collision mesh the envs drive in, made to agree.
 
-Stage `walkable`: reads ground points (meshing's ground_points.npy), the collision mesh and
-the camera path; writes `walkable.npz` (scene-bundle format: grid uint8 [H, W] 1 = walkable,
-origin float64 [2], resolution float64) plus `walkable.json` and the stage marker.
+Stage `walkable`: reads ground points (meshing's ground_points.npy), the fused collision mesh
+and the camera path; writes `walkable.npz` (scene-bundle format: grid uint8 [H, W] 1 = walkable,
+origin float64 [2], resolution float64), the physical `collision.ply` the bundle ships, plus
+`walkable.json` and the stage marker.
 
 Grid convention and the one reader: `vid2sim.formats.walkable` (WalkableGrid, load_walkable).
+
+Agreement by construction (the envs plan on the map and collide with the mesh in pybullet):
+collision geometry lower than the robot's step above the local ground is ground (kerbs the
+robot climbs, reconstructed ground noise) and is DROPPED from the collision mesh; every other
+face blocks the map wherever it lies below `obstacle_max_z_m` above the local ground. So no
+walkable cell (eroded by the robot's radius) has collision geometry anywhere in the robot's
+body band, whatever the body's height; `tests/test_physical_layer.py` checks it on a fused scene.
 
 Steps:
 1. ground evidence: ground-classified depth pixels back-projected to world (meshing), and
    a corridor of `path_radius_m` around the camera path (someone walked there), rasterised;
    gaps closed with a disc of `close_radius_m`.
-2. obstacles: collision-mesh surface points with a height in [obstacle_min_z_m,
-   obstacle_max_z_m] above the local ground (median z of the ground points in the cell,
-   median-filtered over step_smooth_m, nearest seen cell elsewhere; z = 0 without ground
-   points) rasterised, plus ground steps (smoothed height range > max_step_m within
-   step_window_m: kerb drops), inflated; both height thresholds are raised to noise_k x the
-   measured ground-height noise (reconstructed ground), then inflated by the robot radius
-   (Euclidean distance transform). Defaults: robot radius 0.3 m (a sidewalk delivery robot about 0.6 m wide);
-   0.1 m is the tallest step treated as ground roughness; above 1.8 m (awnings, canopies)
-   does not block a ground robot.
-3. keep the 4-connected component(s) containing the camera path (each camera position
+2. local ground height: median z of the ground points in the cell, median-filtered over
+   step_smooth_m, nearest seen cell elsewhere (z = 0 without ground points); the walked
+   corridor anchored at one height.
+3. step height: `obstacle_min_z_m` (0.1 m, the robot's step; the envs' box rides 0.15 m up),
+   raised to noise_k x the measured ground-height noise on reconstructed ground. Collision
+   faces whose vertices all lie lower than the step above the local ground are dropped,
+   unless within base_radius_m of geometry above the step (an obstacle's base).
+4. obstacles: the remaining collision surface below `obstacle_max_z_m` (1.8 m: awnings and
+   canopies above do not block a ground robot) rasterised, plus ground steps (smoothed height
+   range > max_step_m within step_window_m: kerb drops), inflated by the robot radius (0.3 m,
+   a sidewalk delivery robot about 0.6 m wide): a cell is blocked when its centre lies within
+   the radius of a surface sample (exact distance) or of a kerb-step cell's centre.
+5. keep the 4-connected component(s) containing the camera path (each camera position
    snapped to the nearest walkable cell within `snap_m`).
 """
 
@@ -42,13 +53,14 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 3  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
     """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
 
     grid: str = WALKABLE_NPZ  # vid2sim.formats.walkable
+    collision: str = "collision.ply"  # the physical collision mesh (sub-step ground dropped)
     summary: str = "walkable.json"
 
 
@@ -67,7 +79,9 @@ class WalkableError(StageError):
 class WalkableConfig:
     resolution_m: float = 0.1
     robot_radius_m: float = 0.3
-    obstacle_min_z_m: float = 0.1  # above the ground plane z = 0
+    # the robot's step: collision geometry lower than this above the local ground is ground
+    # (dropped from the collision mesh when trim_collision, else only ignored by the map)
+    obstacle_min_z_m: float = 0.1
     obstacle_max_z_m: float = 1.8
     ground_z_m: float = 0.0
     min_ground_hits: int = 1  # ground points needed to mark a cell as seen ground
@@ -97,6 +111,21 @@ class WalkableConfig:
     # inside it do not block (the walker went over them); 0 disables
     walked_radius_m: float = 0.25
     noise_k: float = 6.0  # heavy-tailed: k = 3 / 4 / 6 gave walkable IoU 0.31 / 0.45 / 0.61 on the demo
+    # drop the collision faces below the step (physical layer: map and mesh agree); False keeps
+    # the fused mesh and only ignores low geometry in the map (the old, disagreeing behaviour)
+    trim_collision: bool = True
+    # sub-step faces this close to geometry above the step are an obstacle's base (a wall's or
+    # a planter's lowest 0.1-0.3 m): kept, they lie in blocked cells anyway
+    base_radius_m: float = 0.0
+    # the envs' robot box (vid2sim.envs.config.RobotConfig: 0.15 m ground clearance, 0.6 m
+    # tall) above z = 0, their ground plane: after trimming, a surface sample blocks the map
+    # when it lies in this band, or between body_bottom_m and obstacle_max_z_m above the local
+    # ground; what lies below body_bottom_m on both counts cannot touch the box
+    body_bottom_m: float = 0.15
+    body_top_m: float = 0.75
+    # inflate obstacles by exact distances from the cell centres to the surface samples (True)
+    # rather than cell centre to occupied cell centre (up to 0.07 m off either way at 0.1 m)
+    exact_inflation: bool = True
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -238,19 +267,70 @@ def ground_noise(ground_points: np.ndarray, origin: np.ndarray, shape: tuple[int
     return float(1.4826 * np.median(np.abs(resid)))
 
 
-def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
-                   origin: np.ndarray, conf: WalkableConfig, min_z: float = 0.0) -> np.ndarray:
-    """Cells [H, W] bool under collision geometry within the obstacle height band (its lower
-    edge raised to min_z when larger) above the local ground height ground_z [H, W]."""
-    shape = ground_z.shape
+def height_above_ground(points: np.ndarray, ground_z: np.ndarray, origin: np.ndarray,
+                        res: float) -> np.ndarray:
+    """Height [P] of points [P, 3] above the local ground z [H, W] of their cell (clipped)."""
+    r, c = _cells(points[:, :2], origin, ground_z.shape, res)
+    return points[:, 2] - ground_z[r, c]
+
+
+def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarray,
+                    origin: np.ndarray, res: float, step_m: float, base_m: float = 0.0
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [V', 3], faces [F', 3]) without the faces whose vertices all lie lower than
+    step_m above the local ground z [H, W] (ground noise, climbable kerbs), except those within
+    base_m of a cell holding geometry above the step (the base of a real obstacle, which blocks
+    the map there anyway)."""
+    if len(faces) == 0:
+        return vertices, faces
+    keep = height_above_ground(vertices, ground_z, origin, res)[faces].max(axis=1) >= step_m  # [F]
+    if base_m > 0 and keep.any() and not keep.all():
+        pts = points_by_spacing(vertices, faces[keep], res / 3.0)  # [P, 3]
+        above = pts[height_above_ground(pts, ground_z, origin, res) >= step_m]
+        tall = ndimage.binary_dilation(_rasterise(above[:, :2], origin, ground_z.shape, res),
+                                       _disc(base_m / res))
+        r, c = _cells(vertices[faces[~keep]].mean(axis=1)[:, :2], origin, ground_z.shape, res)
+        keep[~keep] = tall[r, c]
+    used, inv = np.unique(faces[keep], return_inverse=True)
+    return vertices[used], inv.reshape(-1, 3)
+
+
+def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
+                    origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
+    """xy [P, 2] of collision-surface samples (resolution / 3 apart) that can touch the robot:
+    between min_z and obstacle_max_z_m above the local ground z [H, W], or inside the robot's
+    box band [body_bottom_m, body_top_m] above z = 0 (the envs' ground plane), whichever
+    holds (the band only with trim_collision: without it this is the old, height-only map)."""
     if collision_mesh is None:
-        return np.zeros(shape, bool)
+        return np.zeros((0, 2))
     v, f = mesh_arrays(collision_mesh)
+    if len(f) == 0:
+        return np.zeros((0, 2))
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
-    r, c = _cells(pts[:, :2], origin, shape, conf.resolution_m)
-    z = pts[:, 2] - ground_z[r, c]
-    band = (z >= max(conf.obstacle_min_z_m, min_z)) & (z <= conf.obstacle_max_z_m)
-    return _rasterise(pts[band, :2], origin, shape, conf.resolution_m)
+    h = height_above_ground(pts, ground_z, origin, conf.resolution_m)
+    in_body = (pts[:, 2] >= conf.body_bottom_m) & (pts[:, 2] <= conf.body_top_m) & conf.trim_collision
+    return pts[((h >= min_z) & (h <= conf.obstacle_max_z_m)) | in_body, :2]
+
+
+def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
+                   origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
+    """Cells [H, W] bool holding an `obstacle_points` sample."""
+    pts = obstacle_points(collision_mesh, ground_z, origin, conf, min_z)
+    return _rasterise(pts, origin, ground_z.shape, conf.resolution_m)
+
+
+def near_points(points: np.ndarray, origin: np.ndarray, shape: tuple[int, int], res: float,
+                radius_m: float) -> np.ndarray:
+    """Cells [H, W] bool whose centre lies within radius_m of a point of xy [P, 2] (exact
+    distances: a robot centred on any other cell clears every point by more than radius_m)."""
+    out = np.zeros(shape, bool)
+    if len(points) == 0:
+        return out
+    pts = np.unique(np.round(points / (res / 10.0)), axis=0) * (res / 10.0)  # thin to res / 10
+    rows, cols = np.mgrid[0:shape[0], 0:shape[1]]
+    centres = np.stack([origin[0] + (cols.ravel() + 0.5) * res, origin[1] + (rows.ravel() + 0.5) * res], 1)
+    d = cKDTree(pts).query(centres, distance_upper_bound=radius_m + 1e-9)[0]
+    return np.isfinite(d).reshape(shape)
 
 
 def inflate(occupied: np.ndarray, radius_m: float, res: float) -> np.ndarray:
@@ -279,9 +359,21 @@ def path_component(free: np.ndarray, path_rc: np.ndarray, snap_cells: float) -> 
     return np.isin(labels, keep[keep > 0])
 
 
-def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
-                 camera_path: np.ndarray, conf: WalkableConfig) -> WalkableGrid:
-    """Build the walkable map (see module docstring). ground_points [N, 3], camera_path [T, 3]."""
+@dataclass
+class PhysicalLayer:
+    """What the envs get: the walkable map and the collision mesh that agrees with it."""
+
+    walkable: WalkableGrid
+    vertices: np.ndarray  # [V, 3] collision mesh, sub-step faces dropped
+    faces: np.ndarray  # [F, 3]
+    step_m: float  # the step height used (obstacle_min_z_m raised to the ground noise)
+    dropped_faces: int
+
+
+def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
+                   camera_path: np.ndarray, conf: WalkableConfig) -> PhysicalLayer:
+    """Walkable map + trimmed collision mesh (module docstring). ground_points [N, 3],
+    camera_path [T, 3]."""
     gp = np.asarray(ground_points, np.float64).reshape(-1, 3)
     path = np.asarray(camera_path, np.float64).reshape(-1, 3)
     if len(path) == 0 or not np.all(np.isfinite(path)):
@@ -298,15 +390,33 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
     walked = walked_cells(path[:, :2], origin, shape, conf)
     seen = ground_evidence(gp, path[:, :2], origin, shape, conf) | walked
     gz = ground_height(gp, origin, shape, conf, walked)
-    noise_z = conf.noise_k * ground_noise(gp, origin, shape, conf)
-    occupied = obstacle_cells(collision_mesh, gz, origin, conf, noise_z) | \
-        step_cells(gp, origin, shape, conf, walked)
-    blocked = inflate(occupied, conf.robot_radius_m, res)
+    step = max(conf.obstacle_min_z_m, conf.noise_k * ground_noise(gp, origin, shape, conf))
+    v, f = mesh_arrays(collision_mesh) if collision_mesh is not None else \
+        (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
+    n_faces = len(f)
+    if conf.trim_collision:
+        v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
+    min_z = conf.body_bottom_m if conf.trim_collision else step
+    steps = step_cells(gp, origin, shape, conf, walked)
+    if conf.exact_inflation:
+        pts = obstacle_points((v, f), gz, origin, conf, min_z)
+        blocked = near_points(pts, origin, shape, res, conf.robot_radius_m) | \
+            inflate(steps, conf.robot_radius_m, res)
+    else:
+        blocked = inflate(obstacle_cells((v, f), gz, origin, conf, min_z) | steps,
+                          conf.robot_radius_m, res)
     free = seen & ~blocked
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
     grid = path_component(free, path_rc, conf.snap_m / res)
-    return WalkableGrid(grid.astype(np.uint8), origin, res)
+    return PhysicalLayer(WalkableGrid(grid.astype(np.uint8), origin, res), v, f, float(step),
+                         n_faces - len(f))
+
+
+def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
+                 camera_path: np.ndarray, conf: WalkableConfig) -> WalkableGrid:
+    """The walkable map of `physical_layer` (see module docstring)."""
+    return physical_layer(ground_points, collision_mesh, camera_path, conf).walkable
 
 
 def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
@@ -325,11 +435,14 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     except Exception as e:  # trimesh raises many types for unreadable files
         raise WalkableError("bad_collision_mesh", f"{path}: {e}") from e
     with Timer() as t:
-        wm = walkable_map(ground_points, mesh, camera_path, conf)
+        layer = physical_layer(ground_points, mesh, camera_path, conf)
+    wm = layer.walkable
     fresh_dir(out_dir)
     wm.save(out_dir / OUTPUTS.grid)
+    trimesh.Trimesh(layer.vertices, layer.faces, process=False).export(out_dir / OUTPUTS.collision)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
-                   walkable_area_m2=round(wm.area_m2(), 3))
+                   walkable_area_m2=round(wm.area_m2(), 3), step_m=round(layer.step_m, 3),
+                   collision_faces=int(len(layer.faces)), dropped_faces=layer.dropped_faces)
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, summary, t.seconds)

@@ -34,7 +34,7 @@ from vid2sim.splats.render import render
 from vid2sim.splats.types import RasterSettings
 
 STAGE = "bundle"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
 
 
 def tag(key: str, value: object) -> str:
@@ -121,7 +121,7 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
             if colmap.is_dir():
                 extras["colmap"] = colmap
             write_bundle(bundle_dir, scene_json=scene, splats_ply=dirs["recon"] / "splats.ply",
-                         collision_ply=dirs["meshing"] / MESHING.collision,
+                         collision_ply=dirs["walkable"] / WALKABLE.collision,  # the physical layer
                          walkable=walk,
                          cameras=clip.cameras_table(), preview_png=preview, extras=extras,
                          overwrite=True)

@@ -236,7 +236,8 @@ def stage_meshing(ctx: dict) -> dict:
 
 
 def stage_walkable(ctx: dict) -> dict:
-    """Ground points + collision mesh + camera path -> walkable grid (walkable/)."""
+    """Ground points + fused collision mesh + camera path -> the physical layer (walkable/):
+    walkable grid and the collision mesh that agrees with it."""
     _threads(ctx)
     conf: PipelineConfig = ctx["conf"]
     mesh_dir = Path(ctx["meshing_dir"])
@@ -245,15 +246,16 @@ def stage_walkable(ctx: dict) -> dict:
     walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / meshing.OUTPUTS.ground_points),
                              mesh_dir / meshing.OUTPUTS.collision, path, _dir(ctx, "walkable"),
                              input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))))
-    check_corridor(conf.corridor, mesh_dir, walk_dir, path)
+    check_corridor(conf.corridor, walk_dir, path)
     return {"walkable_dir": str(walk_dir)}
 
 
-def check_corridor(conf: CorridorConfig, mesh_dir: Path, walk_dir: Path, path: np.ndarray) -> dict:
-    """Corridor check (vid2sim.factory.evaluation.corridor) written to walk_dir/corridor.json, then the
-    quality gate: raises StageError('walkable', reason) when the walked corridor is blocked."""
-    mesh = trimesh.load(mesh_dir / "collision.ply", force="mesh", process=False)
-    report = corridor_check(load_walkable(walk_dir / "walkable.npz"), mesh, path, conf)
+def check_corridor(conf: CorridorConfig, walk_dir: Path, path: np.ndarray) -> dict:
+    """Corridor check (vid2sim.factory.evaluation.corridor) of the physical layer in walk_dir
+    (walkable.npz + the collision.ply the bundle ships) written to walk_dir/corridor.json, then
+    the quality gate: raises StageError('walkable', reason) when the walked corridor is blocked."""
+    mesh = trimesh.load(walk_dir / walkable.OUTPUTS.collision, force="mesh", process=False)
+    report = corridor_check(load_walkable(walk_dir / walkable.OUTPUTS.grid), mesh, path, conf)
     reasons = gate_reasons(report, conf)
     out = {**report.to_dict(), "passed": not reasons, "reasons": ",".join(reasons)}
     (walk_dir / "corridor.json").write_text(json.dumps(out, indent=2))
