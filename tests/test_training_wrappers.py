@@ -93,7 +93,8 @@ def test_nav_episode_key_leaves_episode_to_sb3_monitor(street_registry, tmp_path
 
 
 @pytest.mark.slow
-def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path):
+def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the CLI checks scenes out under ./vid2sim-checkouts
     out = tmp_path / "videos"
     res = CliRunner().invoke(app, ["eval", "policy", "--policy", "expert", "--registry", str(street_registry),
                                    "--scenes", SCENE, "--trials", "2", "--record", "1", "--record-dir", str(out),
