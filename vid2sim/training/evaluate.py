@@ -127,8 +127,7 @@ def with_recording(env: gym.Env, config: EvalConfig) -> gym.Env:
         return env
     if not config.record_dir:
         raise ValueError("record > 0 needs record_dir")
-    rec = RecordEpisode(env, config.record_dir, episode_trigger=lambda k: k % config.trials < config.record)
-    return rec
+    return RecordEpisode(env, config.record_dir, episode_trigger=lambda k: k % config.trials < config.record)
 
 
 def name_videos(paths: list[Path], scenes: list[str], trials: int) -> list[str]:
