@@ -16,7 +16,7 @@ Env contract
   pedestrians (`EpisodeConfig.pedestrians`) stepped once per control step. Augmentation and
   camera jitter are on when `training` (default), off for evaluation (`training=False`).
 - info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
-  also `episode` (a `metrics.EpisodeRecord`).
+  also `nav_episode` (a `metrics.EpisodeRecord`; not `episode`, which SB3's Monitor owns).
 """
 
 from __future__ import annotations
@@ -177,7 +177,7 @@ class NavEnv(gym.Env):
         info = self._info(terms)
         info["collided"] = collided
         if terms.end:
-            info["episode"] = self.record(terms.end)
+            info["nav_episode"] = self.record(terms.end)
         return self._obs(), float(terms.total), terms.terminated, terms.truncated, info
 
     def render(self) -> Optional[np.ndarray]:
