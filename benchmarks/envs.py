@@ -74,8 +74,8 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
         while not done:
             _, _, term, trunc, info = env.step(expert.act(env))
             done = term or trunc
-        records.append(info["episode"])
-        e = info["episode"]
+        records.append(info["nav_episode"])
+        e = info["nav_episode"]
         ends[e.end] += 1
         ends["obstacles"] += len(env.unwrapped.actors.obstacle_xy())
         x, y, _ = env.unwrapped.robot_pose()

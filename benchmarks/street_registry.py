@@ -12,12 +12,15 @@ import time
 from pathlib import Path
 
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
-from vid2sim.registry import Registry
+from vid2sim.registry import Registry, RegistryNotFound
 
 
 def build(root: Path, seeds: list[int], n_splats: int = 20_000, preset_name: str = "test") -> Registry:
     reg = Registry(root / "registry")
-    have = {r.scene_id for r in reg.list()}
+    try:
+        have = {r.scene_id for r in reg.list()}
+    except RegistryNotFound:  # a fresh root: the first `add` creates the registry
+        have = set()
     for seed in seeds:
         if f"synthetic-street-s{seed}" in have:
             continue

@@ -213,7 +213,7 @@ def test_expert_reaches_goals_and_episode_record(registry):
         terminated = truncated = False
         while not (terminated or truncated):
             _, r, terminated, truncated, info = env.step(expert.act(env))
-        rec = info["episode"]
+        rec = info["nav_episode"]
         ends.append(rec.end)
         assert rec.steps == info["steps"] and rec.path_length > 0
     assert ends == ["success", "success"]

@@ -69,6 +69,8 @@ def policy(
     seed: int = typer.Option(1000, "--seed", help="Trial k of every scene uses seed + k."),
     privileged: bool = typer.Option(False, "--privileged", help="Goal vector + range observations (privileged agent)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
+    record: int = typer.Option(0, "--record", help="MP4s of the first N trials of every scene."),
+    record_dir: Path = typer.Option(Path("vid2sim-eval-videos"), "--record-dir", help="Folder for the MP4s."),
     as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
 ) -> None:
     """Navigation policy on held-out scenes: SR, SPL, Cost, SNS with 95 % bootstrap intervals."""
@@ -80,7 +82,8 @@ def policy(
     config = EvalConfig(registry=registry, policy=policy, split_seed=split_seed, trials=trials, obstacles=obstacles,
                         variant=variant, max_steps=max_steps, seed=seed,
                         env_id="vid2sim/PointNavPrivileged-v0" if privileged else None,
-                        scene_ids=[s for s in (scenes or "").split(",") if s])
+                        scene_ids=[s for s in (scenes or "").split(",") if s],
+                        record=record, record_dir=str(record_dir) if record else None)
     report = evaluate(config)
     if out:
         out.write_text(report.to_json())
@@ -95,3 +98,5 @@ def policy(
         m = report.metrics[k]
         table.add_row(k, f"{m.mean:.3f}", f"[{m.low:.3f}, {m.high:.3f}]")
     Console().print(table)
+    for v in report.videos:
+        typer.echo(f"video: {v}")

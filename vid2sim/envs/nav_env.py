@@ -19,7 +19,7 @@ Env contract
   set through the approximate fast kernels, ~30 dB PSNR vs exact on the demo factory scene) or
   "exact" (default for evaluation); see `envs/config.py` and `envs/simready.py`.
 - info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
-  also `episode` (a `metrics.EpisodeRecord`).
+  also `nav_episode` (a `metrics.EpisodeRecord`; not `episode`, which SB3's Monitor owns).
 """
 
 from __future__ import annotations
@@ -181,7 +181,7 @@ class NavEnv(gym.Env):
         info = self._info(terms)
         info["collided"] = collided
         if terms.end:
-            info["episode"] = self.record(terms.end)
+            info["nav_episode"] = self.record(terms.end)
         return self._obs(), float(terms.total), terms.terminated, terms.truncated, info
 
     def render(self) -> Optional[np.ndarray]:

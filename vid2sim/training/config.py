@@ -17,6 +17,7 @@ class SACConfig:
     tau: float = 0.005
     gamma: float = 0.99
     learning_starts: int = 10_000
+    ent_coef: str = "auto"  # SB3: "auto" (learned, starts at 1.0), "auto_X" (learned, starts at X) or "X" (fixed)
     use_sde: bool = True
     sde_sample_freq: int = 64
     use_sde_at_warmup: bool = True
@@ -27,6 +28,9 @@ class SACConfig:
     image_dim: int = 256
     vector_dim: int = 64
     net_arch: tuple[int, ...] = (256, 256)
+    warmup: str = "random"  # actions during learning_starts: "random" (SB3; gSDE samples with use_sde_at_warmup)
+    # or "expert": scripted A* demonstrations fill the replay buffer first (small-budget presets)
+    bc_weight: float = 0.0  # with warmup="expert": behaviour-cloning actor steps on those demonstrations
 
 
 @dataclass
@@ -47,6 +51,7 @@ class TrainConfig:
     seed: int = 0
     checkpoint_every: int = 10_000  # env steps
     save_replay_buffer: bool = False
+    stuck_steps: Optional[int] = None  # training only: end blocked episodes as failures (training/wrappers.py)
     sac: SACConfig = field(default_factory=SACConfig)
 
     def to_dict(self) -> dict:

@@ -28,6 +28,7 @@ from vid2sim.envs.config import EnvConfig, EpisodeConfig
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
 from vid2sim.envs.obstacles import ObstacleConfig
+from vid2sim.envs.recording import RecordEpisode
 from vid2sim.registry import Registry
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
@@ -48,6 +49,8 @@ class EvalConfig:
     seed: int = 1000
     checkout_root: Optional[str] = None
     env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
+    record: int = 0  # MP4s of the first `record` trials of every scene (camera view + top-down map)
+    record_dir: Optional[str] = None  # where the MP4s go (required when record > 0)
 
 
 @dataclass
@@ -64,6 +67,7 @@ class EvalReport:
     metrics: dict[str, Interval]
     per_scene: dict[str, dict[str, float]]
     records: list[dict]
+    videos: list[str] = field(default_factory=list)  # MP4 paths (EvalConfig.record)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
@@ -114,7 +118,27 @@ def run_episode(env: gym.Env, act: Policy, on_reset: Callable, seed: int, scene_
     while True:
         obs, _, terminated, truncated, info = env.step(act(env, obs))
         if terminated or truncated:
-            return info["episode"]
+            return info["nav_episode"]
+
+
+def with_recording(env: gym.Env, config: EvalConfig) -> gym.Env:
+    """`RecordEpisode` on the first `config.record` trials of every scene (named SCENE-trialK.mp4)."""
+    if not config.record:
+        return env
+    if not config.record_dir:
+        raise ValueError("record > 0 needs record_dir")
+    return RecordEpisode(env, config.record_dir, episode_trigger=lambda k: k % config.trials < config.record)
+
+
+def name_videos(paths: list[Path], scenes: list[str], trials: int) -> list[str]:
+    """Renames RecordEpisode's `episode-K.mp4` (K counts all trials) to `SCENE-trialT.mp4`."""
+    out = []
+    for p in paths:
+        k = int(p.stem.rsplit("-", 1)[1])
+        target = p.with_name(f"{scenes[k // trials]}-trial{k % trials}.mp4")
+        p.replace(target)
+        out.append(str(target))
+    return out
 
 
 def held_out_scenes(config: EvalConfig) -> list[str]:
@@ -155,7 +179,8 @@ def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] 
         raise ValueError("no test scenes: the registry split has an empty test set")
     env_id, env_conf = eval_env_config(config)
     env = gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
-                   checkout_root=config.checkout_root)
+                   checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None)
+    env = with_recording(env, config)
     act, on_reset = load_policy(config.policy, config.seed)
     records, scene_of = [], []
     total = len(scenes) * config.trials
@@ -170,4 +195,5 @@ def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] 
         env.close()
     metrics, per_scene = summarize(records, scene_of)
     rows = [{"scene_id": s, **asdict(r)} for s, r in zip(scene_of, records)]
-    return EvalReport(asdict(config), len(records), metrics, per_scene, rows)
+    videos = name_videos(getattr(env, "paths", []), scenes, config.trials)
+    return EvalReport(asdict(config), len(records), metrics, per_scene, rows, videos)

@@ -43,6 +43,12 @@ class PrivilegedNavEnv(NavEnv):
         """No camera: the privileged agent does not see pixels (saves the render)."""
         return np.zeros((1, 1, 1), np.uint8)
 
+    def render(self) -> Optional[np.ndarray]:
+        """rgb_array: the camera view at the current pose [H, W, 3] (for videos; the agent never sees it)."""
+        if self.render_mode != "rgb_array" or self.episode is None:
+            return None
+        return NavEnv._frame(self).transpose(1, 2, 0)
+
     def _walkable(self) -> WalkableGrid:
         w = self.world.assets.walkable
         if getattr(self, "_grid_for", None) is not self.world:

@@ -28,19 +28,7 @@ from ray.exceptions import RayActorError
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
-
-class NavInfoForSB3(gym.Wrapper):
-    """Moves a non-Monitor `info["episode"]` (the envs' `EpisodeRecord`) to `info["nav_episode"]`.
-
-    SB3 reserves `info["episode"]` for its Monitor's {"r", "l", "t"} dict and logs from it, so the
-    envs' metrics record must not sit under that key inside SB3's loop."""
-
-    def step(self, action):
-        obs, reward, terminated, truncated, info = self.env.step(action)
-        if "episode" in info and not isinstance(info["episode"], dict):
-            info = dict(info)
-            info["nav_episode"] = info.pop("episode")
-        return obs, reward, terminated, truncated, info
+from vid2sim.training.wrappers import ExpertActions, StuckTermination
 
 
 @dataclass
@@ -51,12 +39,15 @@ class EnvSpec:
     kwargs: dict[str, Any] = field(default_factory=dict)
     seed: Optional[int] = None
     module: Optional[str] = None  # imported first, so the env id is registered (e.g. "vid2sim.envs")
+    stuck_steps: Optional[int] = None  # training only: `StuckTermination` after this many blocked steps
+    expert: bool = False  # wrap in `ExpertActions` (env_method("expert_action"), needs a NavEnv)
 
     def make(self) -> gym.Env:
-        """The env, wrapped by `NavInfoForSB3` (these specs feed SB3 vector envs)."""
         if self.module:
             importlib.import_module(self.module)
-        return NavInfoForSB3(gym.make(self.env_id, **self.kwargs))
+        env = gym.make(self.env_id, **self.kwargs)
+        env = ExpertActions(env) if self.expert else env
+        return StuckTermination(env, self.stuck_steps) if self.stuck_steps else env
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -64,11 +55,13 @@ class EnvSpec:
 
 def specs_for_scenes(env_id: str, scene_ids: Sequence[str], n_envs: int, base_kwargs: dict[str, Any],
                      seed: int = 0, module: Optional[str] = "vid2sim.envs",
-                     scene_key: str = "scenes") -> list[EnvSpec]:
+                     scene_key: str = "scenes", stuck_steps: Optional[int] = None,
+                     expert: bool = False) -> list[EnvSpec]:
     """`n_envs` specs with the scenes of a registry split dealt round-robin (env i gets scene i % S)."""
     if not scene_ids:
         raise ValueError("no scenes given")
-    return [EnvSpec(env_id, {**base_kwargs, scene_key: scene_ids[i % len(scene_ids)]}, seed + i, module)
+    return [EnvSpec(env_id, {**base_kwargs, scene_key: scene_ids[i % len(scene_ids)]}, seed + i, module,
+                    stuck_steps, expert)
             for i in range(n_envs)]
 
 
@@ -133,7 +126,7 @@ class EnvWorker:
         return out
 
     def call(self, local_idx: Sequence[int], name: str, args: tuple, kwargs: dict) -> list[Any]:
-        return [getattr(self.envs[i], name)(*args, **kwargs) for i in local_idx]
+        return [self.envs[i].get_wrapper_attr(name)(*args, **kwargs) for i in local_idx]
 
     def get_attr(self, local_idx: Sequence[int], name: str) -> list[Any]:
         return [self.envs[i].get_wrapper_attr(name) for i in local_idx]

@@ -23,8 +23,11 @@ from typing import Any, Optional
 import gymnasium as gym
 import numpy as np
 import psutil
+import torch as th
+import torch.nn.functional as F
 from stable_baselines3 import SAC
 from stable_baselines3.common.callbacks import BaseCallback, CallbackList
+from stable_baselines3.common.utils import polyak_update
 from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from vid2sim.envs.metrics import EpisodeRecord, sns, spl
@@ -71,14 +74,15 @@ def write_run_folder(config: TrainConfig) -> Path:
 
 
 def env_specs(config: TrainConfig) -> list[EnvSpec]:
-    base = dict(config.env_kwargs)
+    base, expert = dict(config.env_kwargs), config.sac.warmup == "expert"
     if config.registry:
         base.setdefault("registry", config.registry)
         base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))  # bundles checked out per run
     if config.scene_ids:
         return specs_for_scenes(config.env_id, config.scene_ids, config.n_envs, base, config.seed,
-                                config.env_module)
-    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module) for i in range(config.n_envs)]
+                                config.env_module, stuck_steps=config.stuck_steps, expert=expert)
+    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module, config.stuck_steps, expert)
+            for i in range(config.n_envs)]
 
 
 def make_vec_env(specs: list[EnvSpec], n_actors: int) -> VecEnv:
@@ -110,6 +114,71 @@ def replay_capacity(obs_space: gym.Space, action_space: gym.Space, requested: in
 
 
 # ------------------------------------------------------------------ model
+class WarmupSAC(SAC):
+    """SAC whose warm-up steps (`learning_starts`) can take the scripted expert's actions.
+
+    With `warmup_expert`, every env must expose `expert_action()` (`ExpertActions` wrapper): the
+    replay buffer starts with demonstrations (successes, the +10 reward) instead of uniform random
+    actions. After the warm-up SAC explores with its own policy as usual; saved runs load with `SAC.load`.
+    """
+
+    warmup_expert: bool = False
+    bc_weight: float = 0.0  # > 0: behaviour-cloning actor steps on the warm-up demonstrations
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        if self.warmup_expert and self.bc_weight > 0:
+            self.bc_steps(gradient_steps, batch_size)
+        else:
+            super().train(gradient_steps, batch_size)
+
+    def demo_batch(self, batch_size: int):
+        """Warm-up demonstrations: buffer rows [0, learning_starts / n_envs) while it has not wrapped."""
+        rows = min(self.learning_starts // self.n_envs, self.replay_buffer.size())
+        return self.replay_buffer._get_samples(np.random.randint(0, rows, batch_size))
+
+    def bc_steps(self, gradient_steps: int, batch_size: int) -> None:
+        """SAC updates with a TD3+BC-style actor loss: soft policy loss / mean |Q| + bc_weight x MSE to the
+        expert's actions on a demonstration batch (keeps the actor near the expert while the critic learns)."""
+        self.policy.set_training_mode(True)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer, self.ent_coef_optimizer])
+        for _ in range(gradient_steps):
+            data = self.replay_buffer.sample(batch_size)
+            actions_pi, log_prob = self.actor.action_log_prob(data.observations)
+            log_prob = log_prob.reshape(-1, 1)
+            ent_coef = th.exp(self.log_ent_coef.detach())
+            ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+            self.ent_coef_optimizer.zero_grad()
+            ent_loss.backward()
+            self.ent_coef_optimizer.step()
+            with th.no_grad():
+                next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+                next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1,
+                                keepdim=True)[0] - ent_coef * next_log_prob.reshape(-1, 1)
+                target_q = data.rewards + (1 - data.dones) * self.gamma * next_q
+            critic_loss = 0.5 * sum(F.mse_loss(q, target_q) for q in self.critic(data.observations, data.actions))
+            self.critic.optimizer.zero_grad()
+            critic_loss.backward()
+            self.critic.optimizer.step()
+            min_q = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), dim=1, keepdim=True)[0]
+            demo = self.demo_batch(batch_size)
+            bc = F.mse_loss(self.actor(demo.observations, deterministic=True), demo.actions)
+            actor_loss = (ent_coef * log_prob - min_q).mean() / min_q.abs().mean().detach().clamp(min=1.0) \
+                + self.bc_weight * bc
+            self.actor.optimizer.zero_grad()
+            actor_loss.backward()
+            self.actor.optimizer.step()
+            polyak_update(self.critic.parameters(), self.critic_target.parameters(), self.tau)
+        self._n_updates += gradient_steps
+        self.logger.record("train/bc_loss", bc.item())
+        self.logger.record("train/critic_loss", critic_loss.item())
+
+    def _sample_action(self, learning_starts: int, action_noise=None, n_envs: int = 1):
+        if self.warmup_expert and self.num_timesteps < learning_starts:
+            actions = np.asarray(self.env.env_method("expert_action"), np.float32)  # [n_envs, 2]
+            return actions, self.policy.scale_action(actions)
+        return super()._sample_action(learning_starts, action_noise, n_envs)
+
+
 def policy_kwargs(config: TrainConfig, obs_space: gym.Space) -> dict[str, Any]:
     sac = config.sac
     kwargs: dict[str, Any] = {"net_arch": list(sac.net_arch)}
@@ -119,15 +188,24 @@ def policy_kwargs(config: TrainConfig, obs_space: gym.Space) -> dict[str, Any]:
     return kwargs
 
 
+def ent_coef(value: str) -> str | float:
+    """SB3's ent_coef argument: "auto" / "auto_X" stay strings, a number is a fixed coefficient."""
+    return value if str(value).startswith("auto") else float(value)
+
+
 def build_model(config: TrainConfig, env: VecEnv) -> SAC:
     sac = config.sac
     capacity = replay_capacity(env.observation_space, env.action_space, sac.buffer_size, sac.memory_fraction)
     policy = "MultiInputPolicy" if isinstance(env.observation_space, gym.spaces.Dict) else "MlpPolicy"
-    return SAC(policy, env, learning_rate=sac.learning_rate, buffer_size=capacity, batch_size=sac.batch_size,
-               tau=sac.tau, gamma=sac.gamma, learning_starts=sac.learning_starts, train_freq=sac.train_freq,
-               gradient_steps=sac.gradient_steps, use_sde=sac.use_sde, sde_sample_freq=sac.sde_sample_freq,
-               use_sde_at_warmup=sac.use_sde_at_warmup, policy_kwargs=policy_kwargs(config, env.observation_space),
-               tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
+    model = WarmupSAC(policy, env, learning_rate=sac.learning_rate, buffer_size=capacity,
+                      batch_size=sac.batch_size, tau=sac.tau, gamma=sac.gamma, ent_coef=ent_coef(sac.ent_coef),
+                      learning_starts=sac.learning_starts, train_freq=sac.train_freq,
+                      gradient_steps=sac.gradient_steps, use_sde=sac.use_sde, sde_sample_freq=sac.sde_sample_freq,
+                      use_sde_at_warmup=sac.use_sde_at_warmup,
+                      policy_kwargs=policy_kwargs(config, env.observation_space),
+                      tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
+    model.warmup_expert, model.bc_weight = sac.warmup == "expert", sac.bc_weight
+    return model
 
 
 # ------------------------------------------------------------------ callbacks
@@ -210,7 +288,7 @@ class TrainResult:
 
 
 def load_for_resume(run: Path, env: VecEnv) -> SAC:
-    model = SAC.load(run / "checkpoints" / "last.zip", env=env, device="cpu")
+    model = WarmupSAC.load(run / "checkpoints" / "last.zip", env=env, device="cpu")
     replay = run / "checkpoints" / "replay.pkl"
     if replay.exists():
         model.load_replay_buffer(replay)

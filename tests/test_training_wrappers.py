@@ -1,0 +1,134 @@
+"""Training-only wrappers (stuck termination, expert warm-up), the `nav_episode` info key, `eval --record`."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import gymnasium as gym
+import numpy as np
+import pytest
+from stable_baselines3 import SAC
+from stable_baselines3.common.monitor import Monitor
+from typer.testing import CliRunner
+
+from vid2sim.cli.app import app
+from vid2sim.envs.metrics import EpisodeRecord
+from vid2sim.envs.physics import RobotState
+from vid2sim.training.config import SACConfig, TrainConfig
+from vid2sim.training.privileged import PRIVILEGED_ID
+from vid2sim.training.sac import train
+from vid2sim.training.wrappers import STUCK, StuckTermination
+
+SCENE = "synthetic-street-s1"
+
+
+@pytest.fixture(scope="module")
+def street_registry(tmp_path_factory):
+    from benchmarks.street_registry import build
+    return build(tmp_path_factory.mktemp("streets"), [1, 2]).root
+
+
+def face_nearest_wall(env: gym.Env, seed: int) -> None:
+    """Reset, then turn the robot (in place, by teleport) towards the closest mesh ray hit."""
+    env.reset(seed=seed)
+    u = env.unwrapped
+    mesh, _ = u.ranges()
+    assert mesh.min() < u.max_range  # the street has a wall within range
+    yaw = u.state.yaw + u.angles[int(np.argmin(mesh))]
+    u.state = RobotState(u.state.x, u.state.y, yaw)
+    u.world.physics.place(u.state.x, u.state.y, yaw)
+
+
+def drive(env: gym.Env, steps: int) -> tuple[list[float], bool, dict]:
+    rewards, info = [], {}
+    for _ in range(steps):
+        _, r, terminated, truncated, info = env.step(np.array([1.0, 0.0], np.float32))
+        rewards.append(r)
+        if terminated or truncated:
+            return rewards, True, info
+    return rewards, False, info
+
+
+def test_pressing_into_a_wall_is_stuck_and_the_wrapper_ends_it(street_registry, tmp_path):
+    make = dict(registry=str(street_registry), scenes=SCENE, training=False, checkout_root=str(tmp_path))
+    plain = gym.make(PRIVILEGED_ID, **make)
+    face_nearest_wall(plain, seed=0)
+    rewards, ended, info = drive(plain, 25)
+    assert not ended and info["collided"]  # blocked for good: no reverse, blocked moves are undone
+    assert rewards[-1] == pytest.approx(-1.1)  # crash + time penalty every step
+    assert info["collision_events"] == 1
+
+    env = StuckTermination(gym.make(PRIVILEGED_ID, **make), steps=5)
+    face_nearest_wall(env, seed=0)
+    rewards, ended, info = drive(env, 25)
+    assert ended and info["end"] == STUCK
+    assert rewards[-1] == pytest.approx(-1.1 - 10.0)  # the paper's failure reward on top
+    rec = info["nav_episode"]
+    assert isinstance(rec, EpisodeRecord) and rec.end == STUCK and not rec.success
+    assert len(rewards) < 15 and rec.steps == len(rewards)
+
+
+def test_standing_still_is_stuck_too(street_registry, tmp_path):
+    env = StuckTermination(gym.make(PRIVILEGED_ID, registry=str(street_registry), scenes=SCENE, training=False,
+                                    checkout_root=str(tmp_path)), steps=6)
+    env.reset(seed=1)
+    for k in range(1, 10):
+        *_, terminated, truncated, info = env.step(np.array([-0.5, 0.3], np.float32))  # speed <= 0: stop
+        if terminated or truncated:
+            break
+    assert k == 6 and terminated and info["end"] == STUCK and not info["collided"]
+
+
+def test_nav_episode_key_leaves_episode_to_sb3_monitor(street_registry, tmp_path):
+    env = Monitor(gym.make(PRIVILEGED_ID, registry=str(street_registry), scenes=SCENE, training=False,
+                           checkout_root=str(tmp_path), max_steps=5))
+    env.reset(seed=0)
+    for _ in range(5):
+        *_, terminated, truncated, info = env.step(np.array([0.0, 0.0], np.float32))
+        if terminated or truncated:
+            break
+    assert truncated and set(info["episode"]) == {"r", "l", "t"} and info["episode"]["l"] == 5
+    assert info["nav_episode"].end == "timeout"
+
+
+@pytest.mark.slow
+def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the CLI checks scenes out under ./vid2sim-checkouts
+    out = tmp_path / "videos"
+    res = CliRunner().invoke(app, ["eval", "policy", "--policy", "expert", "--registry", str(street_registry),
+                                   "--scenes", SCENE, "--trials", "2", "--record", "1", "--record-dir", str(out),
+                                   "--privileged", "--out", str(tmp_path / "report.json")])
+    assert res.exit_code == 0, res.output
+    assert sorted(p.name for p in out.iterdir()) == [f"{SCENE}-trial0.mp4"]
+    report = json.loads((tmp_path / "report.json").read_text())
+    assert report["videos"] == [str(out / f"{SCENE}-trial0.mp4")]
+    cap = cv2.VideoCapture(str(out / f"{SCENE}-trial0.mp4"))
+    frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    ok, frame = cap.read()
+    cap.release()
+    assert ok and frames == report["records"][0]["steps"] + 1  # the reset frame + one per step
+    assert frame.std() > 5  # the camera view and the map, not a blank frame
+
+
+@pytest.mark.parametrize("warmup,bc_weight", [("expert", 0.0), ("random", 0.0), ("expert", 1.0)])
+def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_registry, tmp_path, warmup, bc_weight):
+    run = tmp_path / f"{warmup}{bc_weight}"
+    sac = SACConfig(learning_starts=80, batch_size=16, buffer_size=200, net_arch=(16, 16), use_sde=False,
+                    warmup=warmup, bc_weight=bc_weight)
+    total = 100 if bc_weight else 80  # with BC: 20 steps of SAC + BC updates after the warm-up
+    config = TrainConfig(run_dir=str(run), total_steps=total, env_id=PRIVILEGED_ID,
+                         env_module="vid2sim.training.privileged", registry=str(street_registry),
+                         scene_ids=[SCENE], env_kwargs={"training": True}, n_envs=2, n_actors=0,
+                         stuck_steps=10, save_replay_buffer=True, checkpoint_every=total, sac=sac)
+    result = train(config, progress_bar=False, log_every=40)
+    assert result.num_timesteps == total
+    model = SAC.load(run / "final.zip", device="cpu")
+    model.load_replay_buffer(run / "checkpoints" / "replay.pkl")
+    warm = 80 // config.n_envs  # buffer rows written during the warm-up
+    actions = model.replay_buffer.actions[:warm].reshape(-1, 2)  # [80, 2]
+    rewards = model.replay_buffer.rewards[:warm].ravel()
+    if warmup == "expert":  # pure pursuit: speed in [0.3, 1], drives towards the goal
+        assert actions[:, 0].min() >= 0.3 - 1e-6 and rewards.mean() > 0
+    else:  # uniform random: half the speed commands are below zero (standing still)
+        assert actions[:, 0].min() < 0 and rewards.mean() < 0

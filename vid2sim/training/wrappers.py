@@ -1,0 +1,75 @@
+"""Training-only env wrappers (never used by `vid2sim eval`, which keeps the paper's episode rules).
+
+`StuckTermination`: the bicycle robot cannot reverse and a blocked move is undone, so a robot
+pressed head-on against a wall or obstacle can stay there for the rest of the episode, paying the
+paper's crash penalty (-1) plus the time penalty (-0.1) every step until the step limit: a
+-660 (600-step horizon) to -3300 (3000 steps) tail that dwarfs the +10 success reward and the
+~+20 distance reward of a whole successful episode and swamps the critic's targets. The wrapper
+ends such an episode as a failure (the paper's -10 terminal reward, `terminated`, end "stuck")
+once the robot has not moved (< `min_move` m per control step) for `steps` consecutive control steps.
+Standing still counts too: without it, stopping (-0.1 per step, bootstrapped over a long horizon)
+looks safer to a young critic than driving past walls (-10 per crash), and SAC learns to freeze
+(observed: speed < 0, i.e. stopped, on every held-out episode after 10-40k steps).
+
+`ExpertActions`: the scripted expert's action on demand (warm-up demonstrations for SAC).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from vid2sim.envs.expert import PurePursuitExpert
+
+STUCK = "stuck"
+
+
+class StuckTermination(gym.Wrapper):
+    """Terminates (failure reward) after `steps` consecutive control steps with < `min_move` m of motion."""
+
+    def __init__(self, env: gym.Env, steps: int = 10, min_move: float = 0.02) -> None:
+        super().__init__(env)
+        self.steps, self.min_move = steps, min_move
+        self.count = 0
+
+    def reset(self, **kwargs: Any):
+        obs, info = self.env.reset(**kwargs)
+        self.count = 0
+        self.pose = self.env.unwrapped.robot_pose()[:2]
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        u = self.env.unwrapped
+        pose = u.robot_pose()[:2]
+        moved = math.hypot(pose[0] - self.pose[0], pose[1] - self.pose[1])
+        self.pose = pose
+        self.count = self.count + 1 if moved < self.min_move else 0
+        if self.count >= self.steps and not (terminated or truncated):
+            reward += u.config.reward.failure
+            terminated = True
+            info = {**info, "end": STUCK, "nav_episode": u.record(STUCK)}
+        return obs, reward, terminated, truncated, info
+
+
+class ExpertActions(gym.Wrapper):
+    """Exposes `expert_action()`: the scripted A* pure-pursuit expert's action for the current state.
+
+    Used to fill SAC's replay buffer during the warm-up steps with demonstrations instead of random
+    actions (`SACConfig.warmup = "expert"`); the expert re-plans on every reset.
+    """
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        self.expert = PurePursuitExpert()
+
+    def reset(self, **kwargs: Any):
+        obs, info = self.env.reset(**kwargs)
+        self.expert.reset(self.env)
+        return obs, info
+
+    def expert_action(self) -> np.ndarray:
+        return self.expert.act(self.env)  # [2] speed, steering in [-1, 1]
