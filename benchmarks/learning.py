@@ -58,12 +58,17 @@ def report(name: str, rep, budget: str) -> dict:
     return row
 
 
+def rays(args) -> dict:
+    """Privileged env arguments of `--rays` (default: the env's 11 rays over 200 deg)."""
+    return {"n_rays": args.rays} if args.rays else {}
+
+
 def run_privileged(args) -> None:
     reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
     run = args.root / f"privileged_{args.steps}_h{args.train_max_steps}_s{args.seed}{args.tag}"
     config = TrainConfig(run_dir=str(run), total_steps=args.steps, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged",
-                         env_kwargs={"training": True, "max_steps": args.train_max_steps},
+                         env_kwargs={"training": True, "max_steps": args.train_max_steps, **rays(args)},
                          registry=reg, n_envs=args.n_envs, n_actors=0, seed=args.seed, checkpoint_every=5000,
                          stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
                                                  learning_starts=args.learning_starts, ent_coef=args.ent_coef,
@@ -75,7 +80,7 @@ def run_privileged(args) -> None:
     for row in result.history:
         print(json.dumps({k: round(v, 3) for k, v in row.items()}), flush=True)
     rep = evaluate(EvalConfig(registry=reg, policy=str(run), trials=args.trials, env_id=PRIVILEGED_ID,
-                              checkout_root=str(args.root / "checkouts")))
+                              checkout_root=str(args.root / "checkouts"), env_kwargs=rays(args)))
     (run / "eval.json").write_text(rep.to_json())
     report("privileged SAC", rep, f"{result.num_timesteps} env steps, {result.wall_s:.0f} s wall, {cpu:.0f} s CPU")
 
@@ -211,6 +216,7 @@ def main() -> None:
     ap.add_argument("--bc-weight", type=float, default=1.0, help="privileged: BC actor steps on the demonstrations")
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
+    ap.add_argument("--rays", type=int, default=0, help="privileged: ray count over 200 deg (0: the env's 11)")
     ap.add_argument("--tag", default="")
     ap.add_argument("--runs", type=Path, nargs="*", default=[], help="curve: run folders")
     ap.add_argument("--every", type=int, default=1, help="heldout: every k-th checkpoint")

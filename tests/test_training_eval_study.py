@@ -68,6 +68,15 @@ def test_expert_reaches_goals_on_held_out_scene(street_registry, tmp_path):
 
 
 @pytest.mark.slow
+def test_eval_passes_env_kwargs(street_registry, tmp_path):
+    """`EvalConfig.env_kwargs` reach the env: a 5-step limit leaves the expert no time to reach a goal."""
+    report = evaluate(EvalConfig(registry=str(street_registry), policy="expert", trials=2, env_id=PRIVILEGED_ID,
+                                 checkout_root=str(tmp_path), env_kwargs={"n_rays": 5, "max_steps": 5}))
+    assert report.episodes == 2 and report.metrics["sr"].mean == 0.0
+    assert all(row["steps"] <= 5 for row in report.records)
+
+
+@pytest.mark.slow
 def test_study_end_to_end_on_ray(street_registry, tmp_path):
     path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
     init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})

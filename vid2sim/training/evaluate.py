@@ -51,6 +51,7 @@ class EvalConfig:
     env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
     record: int = 0  # MP4s of the first `record` trials of every scene (camera view + top-down map)
     record_dir: Optional[str] = None  # where the MP4s go (required when record > 0)
+    env_kwargs: dict = field(default_factory=dict)  # extra env arguments (e.g. the privileged env's n_rays)
 
 
 @dataclass
@@ -179,7 +180,8 @@ def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] 
         raise ValueError("no test scenes: the registry split has an empty test set")
     env_id, env_conf = eval_env_config(config)
     env = gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
-                   checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None)
+                   checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None,
+                   **config.env_kwargs)
     env = with_recording(env, config)
     act, on_reset = load_policy(config.policy, config.seed)
     records, scene_of = [], []
