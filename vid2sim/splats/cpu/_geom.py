@@ -126,6 +126,23 @@ def conic_vjp(A, B, C, ga, gb, gc):
 
 
 @njit(cache=True, inline="always")
+def screen_cov(W, j00, j02, j11, j12, s00, s01, s02, s11, s12, s22):
+    """Screen-space 2D covariance (A, B, C) + low-pass of a world covariance (upper triangle
+    s00..s22) under the projection Jacobian rows J (j00, j02; j11, j12) times the view rotation
+    W [9]: rows u, v of J W, then (J W) S (J W)^T. Inlined into the exact and fast kernels."""
+    u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
+    v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
+    su0 = s00 * u0 + s01 * u1 + s02 * u2
+    su1 = s01 * u0 + s11 * u1 + s12 * u2
+    su2 = s02 * u0 + s12 * u1 + s22 * u2
+    A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
+    B = v0 * su0 + v1 * su1 + v2 * su2
+    C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
+         + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+    return A, B, C
+
+
+@njit(cache=True, inline="always")
 def pixel_box(mx, my, cut, A, C, width, height, box, row):
     """Write into box[row] the inclusive pixel box (j0, i0, j1, i1) of centres inside the
     cut-off ellipse of a splat at (mx, my) with covariance diagonal (A, C); box is left

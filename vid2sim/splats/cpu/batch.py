@@ -39,6 +39,23 @@ class EnvFrames:
     stats: np.ndarray
 
 
+
+def check_batch(caller: str, cameras: Sequence[Camera], scene_ids: Optional[Sequence[int]],
+                n_scenes: int, settings: Optional[RasterSettings]) -> tuple[RasterSettings, np.ndarray]:
+    """The settings (default: the first camera's size) and scene index per camera [N] int64
+    (default all 0) of a batched render call; ValueError naming `caller` when a camera's size
+    differs or an index is outside the batch's scenes."""
+    c0 = cameras[0]
+    st = settings or RasterSettings(c0.width, c0.height)
+    W, H, N = st.width, st.height, len(cameras)
+    if any((c.width, c.height) != (W, H) for c in cameras):
+        raise ValueError(f"{caller}: every camera must be {W}x{H}")
+    ids = np.zeros(N, np.int64) if scene_ids is None else np.asarray(scene_ids, np.int64)
+    if ids.shape != (N,) or (N and (ids.min() < 0 or ids.max() >= n_scenes)):
+        raise ValueError(f"scene_ids must be {N} indices into {n_scenes} scenes")
+    return st, ids
+
+
 class SceneBatch:
     """StaticScenes packed for `render_frames` (exact, non-LOD scenes only)."""
 
@@ -83,14 +100,8 @@ class SceneBatch:
         """Render camera i of scene scene_ids[i] (default all 0); every camera has the
         settings' size. Approximations (off by default = exact): blend_cap > 0 stops a pixel
         after that many blends; t_stop > 0 once its transmittance is below t_stop."""
-        c0 = cameras[0]
-        st = settings or RasterSettings(c0.width, c0.height)
+        st, ids = check_batch("SceneBatch.render", cameras, scene_ids, len(self.scenes), settings)
         W, H, N = st.width, st.height, len(cameras)
-        if any((c.width, c.height) != (W, H) for c in cameras):
-            raise ValueError(f"SceneBatch.render: every camera must be {W}x{H}")
-        ids = np.zeros(N, np.int64) if scene_ids is None else np.asarray(scene_ids, np.int64)
-        if ids.shape != (N,) or (N and (ids.min() < 0 or ids.max() >= len(self.scenes))):
-            raise ValueError(f"scene_ids must be {N} indices into {len(self.scenes)} scenes")
         arrs = [camera_arrays(c) for c in cameras]
         views = np.stack([a[0] for a in arrs]) if N else np.zeros((0, 4, 4))  # [N, 4, 4]
         campos = np.stack([a[1] for a in arrs]) if N else np.zeros((0, 3))  # [N, 3]

@@ -17,7 +17,7 @@ import torch
 
 from ..camera import Camera
 from ..types import RasterSettings
-from .batch import EnvFrames
+from .batch import EnvFrames, check_batch
 from .fastframe import NQ, NS, pack_splats, render_fast_frames
 from .function import camera_arrays
 
@@ -68,14 +68,8 @@ class FastBatch:
         `blends` is None (only the per-frame total in stats)."""
         if not 0 <= tile_shift <= 6:
             raise ValueError("FastBatch.render: tiles are 1 to 64 px (tile_shift 0 to 6)")
-        c0 = cameras[0]
-        st = settings or RasterSettings(c0.width, c0.height)
+        st, ids = check_batch("FastBatch.render", cameras, scene_ids, len(self.scenes), settings)
         W, H, N = st.width, st.height, len(cameras)
-        if any((c.width, c.height) != (W, H) for c in cameras):
-            raise ValueError(f"FastBatch.render: every camera must be {W}x{H}")
-        ids = np.zeros(N, np.int64) if scene_ids is None else np.asarray(scene_ids, np.int64)
-        if ids.shape != (N,) or (N and (ids.min() < 0 or ids.max() >= len(self.scenes))):
-            raise ValueError(f"scene_ids must be {N} indices into {len(self.scenes)} scenes")
         views = np.empty((N, 4, 4))
         cams = np.empty((N, 4))
         for i, c in enumerate(cameras):

@@ -31,8 +31,9 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from ._geom import LOWPASS, jac_limits
+from ._geom import jac_limits, screen_cov
 from ._sched import fetch_add, new_counter
+from .frame import finish_env
 from .static_kernels import frustum_planes, sphere_outside
 
 F32 = np.float32
@@ -94,17 +95,9 @@ def _project_one(rec, W, tw, fx, fy, cx, cy, lims, width, height, near, far, cov
     j11 = fy * iz
     j02 = -fx * rx * iz
     j12 = -fy * ry * iz
-    u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
-    v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
     s00, s01, s02 = rec[P_S00], rec[P_S01], rec[P_S02]
     s11, s12, s22 = rec[P_S11], rec[P_S12], rec[P_S22]
-    su0 = s00 * u0 + s01 * u1 + s02 * u2
-    su1 = s01 * u0 + s11 * u1 + s12 * u2
-    su2 = s02 * u0 + s12 * u1 + s22 * u2
-    A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
-    B = v0 * su0 + v1 * su1 + v2 * su2
-    C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
-         + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+    A, B, C = screen_cov(W, j00, j02, j11, j12, s00, s01, s02, s11, s12, s22)
     det = A * C - B * B
     if not det > 0.0:
         return 0
@@ -339,18 +332,6 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, ex
 
 
 @njit(cache=True)
-def finish_fast(color, alpha, depth_acc, bg, rgb, depth):
-    """rgb = color + (1 - alpha) bg; depth = depth_acc / alpha (0 where alpha == 0)."""
-    H, W = alpha.shape
-    for i in range(H):
-        for j in range(W):
-            a = alpha[i, j]
-            for c in range(3):
-                rgb[i, j, c] = color[i, j, c] + (F32(1.0) - a) * bg[c]
-            depth[i, j] = depth_acc[i, j] / max(a, F32(1e-6)) if a > 0.0 else F32(0.0)
-
-
-@njit(cache=True)
 def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
                       shift, near, far, cov_alpha, t_stop, t_fill, bg, q, box, qs, bs, keys, rows, inst,
                       color, out_rgb, out_alpha, out_depth, stats):
@@ -379,7 +360,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
             blends += composite_fast(qs, bs, offsets, inst, ty * tiles_x + tx, x0, y0, x1, y1,
                                      F32(t_stop), F32(t_fill), ex, T, acc, rdone, color, out_alpha,
                                      out_depth)
-    finish_fast(color, out_alpha, out_depth, bg, out_rgb, out_depth)
+    finish_env(color, out_alpha, out_depth, bg, out_rgb, out_depth)
     covered = 0
     for i in range(height):
         for j in range(width):

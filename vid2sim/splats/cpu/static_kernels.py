@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._geom import LOWPASS, jac_limits, pixel_box
+from ._geom import jac_limits, pixel_box, screen_cov
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from ._sh import sh_color
 from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
@@ -94,18 +94,9 @@ def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
     j11 = fy * iz
     j02 = -fx * rx * iz
     j12 = -fy * ry * iz
-    # rows u, v of J W (2x3)
-    u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
-    v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
     s00, s01, s02 = cov[i, 0], cov[i, 1], cov[i, 2]
     s11, s12, s22 = cov[i, 3], cov[i, 4], cov[i, 5]
-    su0 = s00 * u0 + s01 * u1 + s02 * u2
-    su1 = s01 * u0 + s11 * u1 + s12 * u2
-    su2 = s02 * u0 + s12 * u1 + s22 * u2
-    A = u0 * su0 + u1 * su1 + u2 * su2 + LOWPASS
-    B = v0 * su0 + v1 * su1 + v2 * su2
-    C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
-         + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + LOWPASS)
+    A, B, C = screen_cov(W, j00, j02, j11, j12, s00, s01, s02, s11, s12, s22)
     det = A * C - B * B
     if not det > 0.0:
         return
