@@ -6,8 +6,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+import torch
 
 from vid2sim.envs.config import CameraConfig
+from vid2sim.splats import Camera
 
 
 @dataclass(frozen=True)
@@ -63,3 +65,10 @@ def world_to_camera(x: float, y: float, yaw: float, conf: CameraConfig,
     w2c[:3, :3] = R_cw.T
     w2c[:3, 3] = -R_cw.T @ centre
     return w2c
+
+
+def splat_camera(conf: CameraConfig, world_to_cam: np.ndarray) -> Camera:
+    """The splat engine's Camera for the env camera at world_to_cam [4, 4]."""
+    K = intrinsics(conf)
+    return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], conf.width, conf.height,
+                  torch.from_numpy(world_to_cam))

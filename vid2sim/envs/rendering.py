@@ -14,15 +14,26 @@ from typing import Optional
 import numpy as np
 import torch
 
-from vid2sim.envs.camera import intrinsics
+from vid2sim.envs.camera import intrinsics, splat_camera
 from vid2sim.envs.config import CameraConfig, FastRenderConfig
 from vid2sim.envs.raster import rasterize
 from vid2sim.envs.scenes import MeshData, SceneAssets
 from vid2sim.envs.simready import SimReadySet, sim_ready_set
-from vid2sim.splats import Camera, GaussianModel, RasterSettings
+from vid2sim.splats import GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
 
 EMPTY_ALPHA = 0.5
+
+
+
+def view_outputs(rgb: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """A splat render as the envs use it: (rgb [H, W, 3] uint8, depth [H, W] float32, +inf
+    where the coverage is below EMPTY_ALPHA)."""
+    rgb_u8 = (rgb.numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
+    d = depth.numpy().astype(np.float32)  # [H, W], a copy when not float32 already
+    d[alpha.numpy() < EMPTY_ALPHA] = np.inf
+    return rgb_u8, d
 
 
 class SplatView:
@@ -37,14 +48,8 @@ class SplatView:
                                        active_sh_degree=model.sh_degree)
 
     def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        K, c = self.K, self.conf
-        cam = Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], c.width, c.height,
-                     torch.from_numpy(world_to_cam))
-        out = self.scene.render(cam, self.settings)
-        rgb = (out.rgb.numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
-        depth = out.depth.numpy().astype(np.float32)  # [H, W]
-        depth[out.alpha.numpy() < EMPTY_ALPHA] = np.inf
-        return rgb, depth
+        out = self.scene.render(splat_camera(self.conf, world_to_cam), self.settings)
+        return view_outputs(out.rgb, out.depth, out.alpha)
 
 
 class FastSplatView:
@@ -66,18 +71,10 @@ class FastSplatView:
                                       cache_dir=a.bundle_dir.parent / "simready")
         return self._sim
 
-    def camera(self, world_to_cam: np.ndarray) -> Camera:
-        K, c = self.K, self.conf
-        return Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], c.width, c.height,
-                      torch.from_numpy(world_to_cam))
-
     def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out = self.sim.batch.render([self.camera(world_to_cam)], settings=self.settings,
+        out = self.sim.batch.render([splat_camera(self.conf, world_to_cam)], settings=self.settings,
                                     t_stop=self.fast.t_stop, n_workers=1)
-        rgb = (out.rgb[0].numpy().clip(0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)  # [H, W, 3]
-        depth = out.depth[0].numpy()  # [H, W] float32, fresh per call
-        depth[out.alpha[0].numpy() < EMPTY_ALPHA] = np.inf
-        return rgb, depth
+        return view_outputs(out.rgb[0], out.depth[0], out.alpha[0])
 
 
 class MeshView:

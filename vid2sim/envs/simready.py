@@ -22,9 +22,8 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
-import torch
 
-from vid2sim.envs.camera import intrinsics, world_to_camera
+from vid2sim.envs.camera import splat_camera, world_to_camera
 from vid2sim.envs.config import CameraConfig, FastRenderConfig
 from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.splats import Camera, GaussianModel, RasterSettings, read_ply, write_ply
@@ -50,9 +49,7 @@ def view_cameras(grid: WalkableGrid, conf: CameraConfig, n: int, seed: int) -> l
     pick = rng.integers(0, len(rows), n)
     xs, ys = grid.cell_center(rows[pick], cols[pick])
     yaws = rng.uniform(-np.pi, np.pi, n)
-    K = intrinsics(conf)
-    return [Camera(K[0, 0], K[1, 1], K[0, 2], K[1, 2], conf.width, conf.height,
-                   torch.from_numpy(world_to_camera(float(x), float(y), float(a), conf)))
+    return [splat_camera(conf, world_to_camera(float(x), float(y), float(a), conf))
             for x, y, a in zip(xs, ys, yaws)]
 
 
