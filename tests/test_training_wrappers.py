@@ -111,11 +111,13 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
     assert frame.std() > 5  # the camera view and the map, not a blank frame
 
 
-@pytest.mark.parametrize("warmup,bc_weight", [("expert", 0.0), ("random", 0.0), ("expert", 1.0)])
-def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_registry, tmp_path, warmup, bc_weight):
-    run = tmp_path / f"{warmup}{bc_weight}"
+@pytest.mark.parametrize("warmup,bc_weight,ent", [("expert", 0.0, "auto"), ("random", 0.0, "auto"),
+                                                  ("expert", 1.0, "auto"), ("expert", 1.0, "0.05")])
+def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_registry, tmp_path, warmup, bc_weight,
+                                                                   ent):
+    run = tmp_path / f"{warmup}{bc_weight}{ent}"
     sac = SACConfig(learning_starts=80, batch_size=16, buffer_size=200, net_arch=(16, 16), use_sde=False,
-                    warmup=warmup, bc_weight=bc_weight)
+                    warmup=warmup, bc_weight=bc_weight, ent_coef=ent)
     total = 100 if bc_weight else 80  # with BC: 20 steps of SAC + BC updates after the warm-up
     config = TrainConfig(run_dir=str(run), total_steps=total, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged", registry=str(street_registry),

@@ -140,16 +140,21 @@ class WarmupSAC(SAC):
         """SAC updates with a TD3+BC-style actor loss: soft policy loss / mean |Q| + bc_weight x MSE to the
         expert's actions on a demonstration batch (keeps the actor near the expert while the critic learns)."""
         self.policy.set_training_mode(True)
-        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer, self.ent_coef_optimizer])
+        auto_ent = self.ent_coef_optimizer is not None  # False: a fixed ent_coef (SB3's ent_coef_tensor)
+        self._update_learning_rate([self.actor.optimizer, self.critic.optimizer]
+                                   + ([self.ent_coef_optimizer] if auto_ent else []))
         for _ in range(gradient_steps):
             data = self.replay_buffer.sample(batch_size)
             actions_pi, log_prob = self.actor.action_log_prob(data.observations)
             log_prob = log_prob.reshape(-1, 1)
-            ent_coef = th.exp(self.log_ent_coef.detach())
-            ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-            self.ent_coef_optimizer.zero_grad()
-            ent_loss.backward()
-            self.ent_coef_optimizer.step()
+            if auto_ent:
+                ent_coef = th.exp(self.log_ent_coef.detach())
+                ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                self.ent_coef_optimizer.zero_grad()
+                ent_loss.backward()
+                self.ent_coef_optimizer.step()
+            else:
+                ent_coef = self.ent_coef_tensor
             with th.no_grad():
                 next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
                 next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1,
