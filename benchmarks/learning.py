@@ -70,6 +70,7 @@ def run_privileged(args) -> None:
                          env_module="vid2sim.training.privileged",
                          env_kwargs={"training": True, "max_steps": args.train_max_steps, **rays(args)},
                          registry=reg, n_envs=args.n_envs, n_actors=0, seed=args.seed, checkpoint_every=5000,
+                         action_map=args.action_map,
                          stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
                                                  learning_starts=args.learning_starts, ent_coef=args.ent_coef,
                                                  gradient_steps=args.gradient_steps, bc_weight=args.bc_weight,
@@ -217,6 +218,8 @@ def main() -> None:
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
     ap.add_argument("--rays", type=int, default=0, help="privileged: ray count over 200 deg (0: the env's 11)")
+    ap.add_argument("--action-map", default="clamp", choices=["clamp", "full"],
+                    help="privileged: policy speed -> env speed (training/actions.py; full: (p + 1) / 2)")
     ap.add_argument("--tag", default="")
     ap.add_argument("--runs", type=Path, nargs="*", default=[], help="curve: run folders")
     ap.add_argument("--every", type=int, default=1, help="heldout: every k-th checkpoint")

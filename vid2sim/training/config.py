@@ -52,6 +52,7 @@ class TrainConfig:
     checkpoint_every: int = 10_000  # env steps
     save_replay_buffer: bool = False
     stuck_steps: Optional[int] = None  # training only: end blocked episodes as failures (training/wrappers.py)
+    action_map: str = "clamp"  # policy -> env actions (training/actions.py): "clamp" (envs' contract) or "full"
     sac: SACConfig = field(default_factory=SACConfig)
 
     def to_dict(self) -> dict:

@@ -8,7 +8,9 @@ confidence interval over episodes (1000 resamples, fixed seed).
 
 Variants (the paper's): `--obstacles none|static|dynamic` (dynamic = SocialNav pedestrians),
 `--variant rgb|depth|mesh-rgb` (depth oracle, mesh-RGB baseline). Policies: a training run
-folder (its `final.zip` or `checkpoints/last.zip`), `random`, or `expert` (A* pure pursuit).
+folder (its `final.zip` or `checkpoints/last.zip`), `random`, or `expert` (A* pure pursuit). A
+trained policy's actions go through the action mapping it was trained with (`model.action_map`,
+`vid2sim.training.actions`), so the env sees what the training envs saw.
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
 from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.envs.recording import RecordEpisode
 from vid2sim.registry import Registry
+from vid2sim.training.actions import to_env
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
 METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
@@ -95,7 +98,8 @@ def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], Non
         expert = PurePursuitExpert()
         return (lambda env, obs: expert.act(env)), expert.reset
     model = SAC.load(policy_path(policy), device="cpu")
-    return (lambda env, obs: model.predict(obs, deterministic=True)[0]), (lambda env: None)
+    mapping = getattr(model, "action_map", "clamp")  # the training envs' action mapping (saved with the model)
+    return (lambda env, obs: to_env(model.predict(obs, deterministic=True)[0], mapping)), (lambda env: None)
 
 
 # ------------------------------------------------------------------ episodes

@@ -2,8 +2,9 @@
 
 The exported graph is the deterministic SAC actor with everything a robot needs baked in:
 uint8 frames in (scaled to [0, 1] inside), the goal vector in metres / radians (scaled inside),
-`tanh` squashing, the action-space rescale and a clamp to [low, high]. Output: normalised
-[speed, steering] in [-1, 1]. TorchScript is not shipped: PyTorch marks it deprecated in favour
+`tanh` squashing, the action-space rescale, a clamp to [low, high] and the policy's action
+mapping (`model.action_map`, `vid2sim.training.actions`: "full" maps speed to (p + 1) / 2).
+Output: normalised [speed, steering] in the envs' contract, [-1, 1] (speed <= 0 means stop). TorchScript is not shipped: PyTorch marks it deprecated in favour
 of `torch.export`, and robot stacks (Isaac Lab, SB3's export guide) consume ONNX.
 
 `NavPolicy` is the inference API: feed one camera frame plus the odometry (distance and heading
@@ -23,6 +24,7 @@ import torch
 from stable_baselines3 import SAC
 from torch import nn
 
+from vid2sim.training.actions import affine, check_map
 from vid2sim.versioning import code_version
 
 ONNX_NAME, PROGRAM_NAME, META_NAME = "policy.onnx", "policy.pt2", "policy.json"
@@ -39,12 +41,20 @@ class DeterministicActor(nn.Module):
         space = model.action_space
         self.register_buffer("low", torch.as_tensor(space.low, dtype=torch.float32))
         self.register_buffer("high", torch.as_tensor(space.high, dtype=torch.float32))
+        scale, offset = affine(action_map(model))  # env action = policy action * scale + offset
+        self.register_buffer("map_scale", torch.from_numpy(scale))
+        self.register_buffer("map_offset", torch.from_numpy(offset))
 
     def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         feats = self.features({"image": image.float(), "vector": vector.float()})
         squashed = torch.tanh(self.mu(self.latent_pi(feats)))
         action = self.low + 0.5 * (squashed + 1.0) * (self.high - self.low)
-        return torch.clamp(action, self.low, self.high)
+        return torch.clamp(action, self.low, self.high) * self.map_scale + self.map_offset  # [B, 2] env contract
+
+
+def action_map(model: SAC) -> str:
+    """The model's policy -> env action mapping ("clamp" for models saved before mappings existed)."""
+    return check_map(getattr(model, "action_map", "clamp"))
 
 
 @dataclass
@@ -54,6 +64,7 @@ class PolicyMeta:
     actions: list[str]
     code_version: str
     source: str
+    action_map: str = "clamp"  # baked into the graph already; recorded for the reader
 
 
 def example_inputs(model: SAC, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
@@ -78,7 +89,7 @@ def export_policy(model: SAC | str | Path, out_dir: str | Path) -> Path:
                       dynamic_shapes=shapes, dynamo=True, external_data=False)
     spaces = model.observation_space.spaces
     meta = PolicyMeta(list(spaces["image"].shape), list(spaces["vector"].shape), ["speed", "steering"],
-                      code_version(), source)
+                      code_version(), source, action_map(model))
     (out / META_NAME).write_text(json.dumps(asdict(meta), indent=2))
     return out
 

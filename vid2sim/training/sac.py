@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecEnv
 
 from vid2sim.envs.metrics import EpisodeRecord, sns, spl
 from vid2sim.registry import Registry
+from vid2sim.training.actions import check_map
 from vid2sim.training.config import TrainConfig
 from vid2sim.training.policy import NavCNN
 from vid2sim.training.rollouts import EnvSpec, RayVecEnv, RayVecEnvConfig, specs_for_scenes
@@ -80,9 +81,10 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
         base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))  # bundles checked out per run
     if config.scene_ids:
         return specs_for_scenes(config.env_id, config.scene_ids, config.n_envs, base, config.seed,
-                                config.env_module, stuck_steps=config.stuck_steps, expert=expert)
-    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module, config.stuck_steps, expert)
-            for i in range(config.n_envs)]
+                                config.env_module, stuck_steps=config.stuck_steps, expert=expert,
+                                action_map=config.action_map)
+    return [EnvSpec(config.env_id, base, config.seed + i, config.env_module, config.stuck_steps, expert,
+                    config.action_map) for i in range(config.n_envs)]
 
 
 def make_vec_env(specs: list[EnvSpec], n_actors: int) -> VecEnv:
@@ -124,6 +126,7 @@ class WarmupSAC(SAC):
 
     warmup_expert: bool = False
     bc_weight: float = 0.0  # > 0: behaviour-cloning actor steps on the warm-up demonstrations
+    action_map: str = "clamp"  # policy -> env action mapping of the training envs (training/actions.py)
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         if self.warmup_expert and self.bc_weight > 0:
@@ -210,6 +213,7 @@ def build_model(config: TrainConfig, env: VecEnv) -> SAC:
                       policy_kwargs=policy_kwargs(config, env.observation_space),
                       tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
     model.warmup_expert, model.bc_weight = sac.warmup == "expert", sac.bc_weight
+    model.action_map = check_map(config.action_map)  # saved in the zip: eval and export map the same way
     return model
 
 
