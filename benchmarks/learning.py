@@ -74,6 +74,7 @@ def run_privileged(args) -> None:
                          stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
                                                  learning_starts=args.learning_starts, ent_coef=args.ent_coef,
                                                  gradient_steps=args.gradient_steps, bc_weight=args.bc_weight,
+                                                 bc_pretrain_steps=args.bc_pretrain,
                                                  net_arch=tuple(int(n) for n in args.net.split(","))))
     cpu0 = time.process_time()
     result = train(config, progress_bar=False, log_every=2000)
@@ -215,6 +216,8 @@ def main() -> None:
     ap.add_argument("--learning-starts", type=int, default=5000)
     ap.add_argument("--gradient-steps", type=int, default=5, help="privileged: per vector step (5 envs: UTD 1)")
     ap.add_argument("--bc-weight", type=float, default=1.0, help="privileged: BC actor steps on the demonstrations")
+    ap.add_argument("--bc-pretrain", type=int, default=0,
+                    help="privileged: BC + TD gradient steps on the demonstrations before SAC acts")
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
     ap.add_argument("--rays", type=int, default=0, help="privileged: ray count over 200 deg (0: the env's 11)")

@@ -134,3 +134,25 @@ def test_expert_warmup_fills_the_replay_buffer_with_demonstrations(street_regist
         assert actions[:, 0].min() >= 0.3 - 1e-6 and rewards.mean() > 0
     else:  # uniform random: half the speed commands are below zero (standing still)
         assert actions[:, 0].min() < 0 and rewards.mean() < 0
+
+
+def test_bc_pretraining_fits_the_actor_to_the_demonstrations(street_registry, tmp_path):
+    def run(pretrain: int) -> tuple[SAC, float]:
+        sac = SACConfig(learning_starts=60, batch_size=16, buffer_size=200, net_arch=(16, 16), use_sde=False,
+                        warmup="expert", bc_weight=1.0, bc_pretrain_steps=pretrain, learning_rate=3e-3)
+        config = TrainConfig(run_dir=str(tmp_path / f"p{pretrain}"), total_steps=64, env_id=PRIVILEGED_ID,
+                             env_module="vid2sim.training.privileged", registry=str(street_registry),
+                             scene_ids=[SCENE], env_kwargs={"training": True}, n_envs=2, n_actors=0,
+                             stuck_steps=10, save_replay_buffer=True, checkpoint_every=64, sac=sac)
+        train(config, progress_bar=False, log_every=32)
+        model = SAC.load(tmp_path / f"p{pretrain}" / "final.zip", device="cpu")
+        model.load_replay_buffer(tmp_path / f"p{pretrain}" / "checkpoints" / "replay.pkl")
+        buf = model.replay_buffer
+        obs, demos = buf.observations[:30].reshape(60, -1), buf.actions[:30].reshape(60, 2)  # warm-up rows
+        pred = model.predict(obs, deterministic=True)[0]  # [60, 2]
+        return model, float(np.mean((pred - demos) ** 2))
+
+    (fresh, mse_fresh), (pre, mse_pre) = run(0), run(300)
+    assert pre.pretrained and not fresh.pretrained
+    assert pre._n_updates >= 300 > fresh._n_updates
+    assert mse_pre < 0.5 * mse_fresh  # the actor imitates the expert before SAC's first own action

@@ -31,6 +31,8 @@ class SACConfig:
     warmup: str = "random"  # actions during learning_starts: "random" (SB3; gSDE samples with use_sde_at_warmup)
     # or "expert": scripted A* demonstrations fill the replay buffer first (small-budget presets)
     bc_weight: float = 0.0  # with warmup="expert": behaviour-cloning actor steps on those demonstrations
+    bc_pretrain_steps: int = 0  # with warmup="expert": gradient steps of BC (actor) + TD (critic) on the
+    # demonstrations alone, once, before SAC's own actions are used (avoids starting from a random actor)
 
 
 @dataclass

@@ -122,13 +122,20 @@ class WarmupSAC(SAC):
     With `warmup_expert`, every env must expose `expert_action()` (`ExpertActions` wrapper): the
     replay buffer starts with demonstrations (successes, the +10 reward) instead of uniform random
     actions. After the warm-up SAC explores with its own policy as usual; saved runs load with `SAC.load`.
+    `pretrain_steps` > 0: before its first own action, the actor is fitted to the demonstrations (BC)
+    while the critic learns their TD targets, so SAC starts from an expert-like actor, not a random one.
     """
 
     warmup_expert: bool = False
     bc_weight: float = 0.0  # > 0: behaviour-cloning actor steps on the warm-up demonstrations
     action_map: str = "clamp"  # policy -> env action mapping of the training envs (training/actions.py)
+    pretrain_steps: int = 0  # > 0: that many BC actor + TD critic steps on the demonstrations before SAC acts
+    pretrained: bool = False
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        if self.warmup_expert and self.pretrain_steps and not self.pretrained:
+            self.bc_steps(self.pretrain_steps, batch_size, actor_rl=False)
+            self.pretrained = True
         if self.warmup_expert and self.bc_weight > 0:
             self.bc_steps(gradient_steps, batch_size)
         else:
@@ -139,9 +146,11 @@ class WarmupSAC(SAC):
         rows = min(self.learning_starts // self.n_envs, self.replay_buffer.size())
         return self.replay_buffer._get_samples(np.random.randint(0, rows, batch_size))
 
-    def bc_steps(self, gradient_steps: int, batch_size: int) -> None:
+    def bc_steps(self, gradient_steps: int, batch_size: int, actor_rl: bool = True) -> None:
         """SAC updates with a TD3+BC-style actor loss: soft policy loss / mean |Q| + bc_weight x MSE to the
-        expert's actions on a demonstration batch (keeps the actor near the expert while the critic learns)."""
+        expert's actions on a demonstration batch (keeps the actor near the expert while the critic learns).
+        `actor_rl=False` (pre-training on the demonstrations): the actor minimises the MSE alone and the
+        entropy coefficient stays put; the critic learns the same TD targets."""
         self.policy.set_training_mode(True)
         auto_ent = self.ent_coef_optimizer is not None  # False: a fixed ent_coef (SB3's ent_coef_tensor)
         self._update_learning_rate([self.actor.optimizer, self.critic.optimizer]
@@ -152,10 +161,11 @@ class WarmupSAC(SAC):
             log_prob = log_prob.reshape(-1, 1)
             if auto_ent:
                 ent_coef = th.exp(self.log_ent_coef.detach())
-                ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
-                self.ent_coef_optimizer.zero_grad()
-                ent_loss.backward()
-                self.ent_coef_optimizer.step()
+                if actor_rl:
+                    ent_loss = -(self.log_ent_coef * (log_prob + self.target_entropy).detach()).mean()
+                    self.ent_coef_optimizer.zero_grad()
+                    ent_loss.backward()
+                    self.ent_coef_optimizer.step()
             else:
                 ent_coef = self.ent_coef_tensor
             with th.no_grad():
@@ -167,11 +177,14 @@ class WarmupSAC(SAC):
             self.critic.optimizer.zero_grad()
             critic_loss.backward()
             self.critic.optimizer.step()
-            min_q = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), dim=1, keepdim=True)[0]
             demo = self.demo_batch(batch_size)
             bc = F.mse_loss(self.actor(demo.observations, deterministic=True), demo.actions)
-            actor_loss = (ent_coef * log_prob - min_q).mean() / min_q.abs().mean().detach().clamp(min=1.0) \
-                + self.bc_weight * bc
+            if actor_rl:
+                min_q = th.min(th.cat(self.critic(data.observations, actions_pi), dim=1), dim=1, keepdim=True)[0]
+                actor_loss = (ent_coef * log_prob - min_q).mean() / min_q.abs().mean().detach().clamp(min=1.0) \
+                    + self.bc_weight * bc
+            else:
+                actor_loss = bc
             self.actor.optimizer.zero_grad()
             actor_loss.backward()
             self.actor.optimizer.step()
@@ -213,6 +226,7 @@ def build_model(config: TrainConfig, env: VecEnv) -> SAC:
                       policy_kwargs=policy_kwargs(config, env.observation_space),
                       tensorboard_log=str(Path(config.run_dir) / "tb"), seed=config.seed, device="cpu", verbose=0)
     model.warmup_expert, model.bc_weight = sac.warmup == "expert", sac.bc_weight
+    model.pretrain_steps, model.pretrained = sac.bc_pretrain_steps, False
     model.action_map = check_map(config.action_map)  # saved in the zip: eval and export map the same way
     return model
 
