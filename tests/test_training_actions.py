@@ -9,7 +9,7 @@ from stable_baselines3 import SAC
 
 from vid2sim.training.actions import ActionMapping, affine, from_env, to_env
 from vid2sim.training.config import SACConfig, TrainConfig
-from vid2sim.training.evaluate import load_policy
+from vid2sim.training.evaluate import EvalConfig, evaluate, load_policy
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.sac import train
 from vid2sim.training.wrappers import ExpertActions
@@ -67,14 +67,14 @@ def test_expert_action_is_mapped_back_into_the_policy_space(street_registry, tmp
         env.step(mapped)  # and it drives the expert's speed again
 
 
-def demo_run(registry, run_dir, action_map: str) -> SAC:
+def demo_run(registry, run_dir, action_map: str, n_rays: int = 11) -> SAC:
     """80 env steps (60 of expert warm-up, 20 of SAC + BC), replay buffer saved."""
     sac = SACConfig(learning_starts=60, batch_size=16, buffer_size=200, net_arch=(16, 16), use_sde=False,
                     warmup="expert", bc_weight=1.0)
     config = TrainConfig(run_dir=str(run_dir), total_steps=80, env_id=PRIVILEGED_ID,
                          env_module="vid2sim.training.privileged", registry=str(registry),
-                         scene_ids=[SCENE], env_kwargs={"training": True}, n_envs=2, n_actors=0, stuck_steps=10,
-                         save_replay_buffer=True, checkpoint_every=80, action_map=action_map, sac=sac)
+                         scene_ids=[SCENE], env_kwargs={"training": True, "n_rays": n_rays}, n_envs=2, n_actors=0,
+                         stuck_steps=10, save_replay_buffer=True, checkpoint_every=80, action_map=action_map, sac=sac)
     train(config, progress_bar=False, log_every=40)
     model = SAC.load(run_dir / "final.zip", device="cpu")
     model.load_replay_buffer(run_dir / "checkpoints" / "replay.pkl")
@@ -82,7 +82,8 @@ def demo_run(registry, run_dir, action_map: str) -> SAC:
 
 
 def test_expert_demonstrations_under_the_full_map(street_registry, tmp_path):
-    full, clamp = demo_run(street_registry, tmp_path / "full", "full"), demo_run(street_registry, tmp_path / "c", "clamp")
+    full = demo_run(street_registry, tmp_path / "full", "full", n_rays=7)
+    clamp = demo_run(street_registry, tmp_path / "c", "clamp", n_rays=7)
     assert full.action_map == "full" and TrainConfig.load(tmp_path / "full" / "config.json").action_map == "full"
     assert clamp.action_map == "clamp"
     demos = full.replay_buffer.actions[:30].reshape(-1, 2)  # [60, 2] warm-up rows, policy space
@@ -98,3 +99,8 @@ def test_expert_demonstrations_under_the_full_map(street_registry, tmp_path):
     expected = to_env(full.predict(obs, deterministic=True)[0], "full")
     np.testing.assert_allclose(act(None, obs), expected, atol=1e-6)
     assert 0.0 <= act(None, obs)[0] <= 1.0
+
+    ckpt = str(tmp_path / "full" / "checkpoints" / "last.zip")
+    report = evaluate(EvalConfig(registry=str(street_registry), policy=ckpt, scene_ids=[SCENE], trials=1,
+                                 max_steps=5, env_id=PRIVILEGED_ID, checkout_root=str(tmp_path / "co")))
+    assert report.episodes == 1 and report.config["env_kwargs"] == {}  # 7 rays read from the run's config

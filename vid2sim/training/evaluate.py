@@ -54,7 +54,8 @@ class EvalConfig:
     env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
     record: int = 0  # MP4s of the first `record` trials of every scene (camera view + top-down map)
     record_dir: Optional[str] = None  # where the MP4s go (required when record > 0)
-    env_kwargs: dict = field(default_factory=dict)  # extra env arguments (e.g. the privileged env's n_rays)
+    env_kwargs: dict = field(default_factory=dict)  # extra env arguments; a run's own n_rays etc. are read
+    # from its config.json (run_observation_kwargs), these override them
 
 
 @dataclass
@@ -87,6 +88,21 @@ def policy_path(policy: str) -> Path:
         if cand.is_file():
             return cand
     raise FileNotFoundError(f"no SAC checkpoint at {policy} (looked for final.zip, checkpoints/last.zip)")
+
+
+OBSERVATION_KWARGS = ("n_rays", "fov_deg", "max_range", "ray_height")  # env arguments that shape the observation
+
+
+def run_observation_kwargs(policy: str) -> dict:
+    """The observation-shaping env arguments a run was trained with (its config.json), {} for other policies."""
+    if policy in ("random", "expert"):
+        return {}
+    ckpt = policy_path(policy)
+    for folder in (ckpt.parent, ckpt.parent.parent):  # RUN/final.zip or RUN/checkpoints/step_N.zip
+        if (folder / "config.json").is_file():
+            kwargs = json.loads((folder / "config.json").read_text()).get("env_kwargs", {})
+            return {k: v for k, v in kwargs.items() if k in OBSERVATION_KWARGS}
+    return {}
 
 
 def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], None]]:
@@ -185,7 +201,7 @@ def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] 
     env_id, env_conf = eval_env_config(config)
     env = gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
                    checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None,
-                   **config.env_kwargs)
+                   **{**run_observation_kwargs(config.policy), **config.env_kwargs})
     env = with_recording(env, config)
     act, on_reset = load_policy(config.policy, config.seed)
     records, scene_of = [], []
