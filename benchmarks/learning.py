@@ -59,8 +59,8 @@ def report(name: str, rep, budget: str) -> dict:
 
 
 def rays(args) -> dict:
-    """Privileged env arguments of `--rays` (default: the env's 11 rays over 200 deg)."""
-    return {"n_rays": args.rays} if args.rays else {}
+    """Privileged env arguments of `--rays` / `--max-range` (default: the env's 11 rays over 200 deg, 5 m)."""
+    return {**({"n_rays": args.rays} if args.rays else {}), **({"max_range": args.max_range} if args.max_range else {})}
 
 
 def run_privileged(args) -> None:
@@ -221,6 +221,7 @@ def main() -> None:
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
     ap.add_argument("--rays", type=int, default=0, help="privileged: ray count over 200 deg (0: the env's 11)")
+    ap.add_argument("--max-range", type=float, default=0.0, help="privileged: ray range in m (0: the env's 5)")
     ap.add_argument("--action-map", default="clamp", choices=["clamp", "full"],
                     help="privileged: policy speed -> env speed (training/actions.py; full: (p + 1) / 2)")
     ap.add_argument("--tag", default="")
