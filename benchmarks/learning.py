@@ -2,6 +2,7 @@
 
     python benchmarks/learning.py sanity --trials 20    # scripted policies' returns under the reward
     python benchmarks/learning.py privileged --steps 40000 [--warmup random --bc-weight 0] [--root ...]
+        (defaults: 31 rays over 200 deg, 2.5 m range, speed mapped over the whole action range)
     python benchmarks/learning.py pixel --steps 3000
     python benchmarks/learning.py baselines --trials 25
     (study: vid2sim study --registry ROOT/registry --counts 1,3 --seeds 2 --env privileged ...)
@@ -42,7 +43,7 @@ from vid2sim.training.wrappers import StuckTermination  # noqa: E402
 
 PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, gradient_steps=5, train_freq=1,
                      use_sde=False, warmup="expert", ent_coef="auto_0.01", net_arch=(128, 128),
-                     bc_weight=1.0)  # run k of README (best held-out SR here: 0.32 at 40k env steps)
+                     bc_weight=1.0)  # with --rays 31 --max-range 2.5 --action-map full (the defaults): README run r
 
 
 def header() -> None:
@@ -220,9 +221,9 @@ def main() -> None:
                     help="privileged: BC + TD gradient steps on the demonstrations before SAC acts")
     ap.add_argument("--net", default="128,128", help="privileged: actor/critic hidden sizes")
     ap.add_argument("--ent-coef", default="auto_0.01", help="privileged: SB3 ent_coef (paper preset: auto = 1.0 start)")
-    ap.add_argument("--rays", type=int, default=0, help="privileged: ray count over 200 deg (0: the env's 11)")
-    ap.add_argument("--max-range", type=float, default=0.0, help="privileged: ray range in m (0: the env's 5)")
-    ap.add_argument("--action-map", default="clamp", choices=["clamp", "full"],
+    ap.add_argument("--rays", type=int, default=31, help="privileged: ray count over 200 deg (0: the env's 11)")
+    ap.add_argument("--max-range", type=float, default=2.5, help="privileged: ray range in m (0: the env's 5)")
+    ap.add_argument("--action-map", default="full", choices=["clamp", "full"],
                     help="privileged: policy speed -> env speed (training/actions.py; full: (p + 1) / 2)")
     ap.add_argument("--tag", default="")
     ap.add_argument("--runs", type=Path, nargs="*", default=[], help="curve: run folders")

@@ -10,6 +10,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from vid2sim.training.actions import check_map
 from vid2sim.training.config import SACConfig, TrainConfig
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
@@ -51,6 +52,8 @@ def train_command(
     batch_size: Optional[int] = typer.Option(None, "--batch-size", help="Override the paper's 256."),
     buffer_size: Optional[int] = typer.Option(None, "--buffer-size", help="Replay cap (also capped by free memory)."),
     checkpoint_every: int = typer.Option(10_000, "--checkpoint-every"),
+    action_map: str = typer.Option("clamp", "--action-map",
+                                   help="clamp (the envs' speed contract) | full (speed = (a + 1) / 2)."),
     resume: bool = typer.Option(False, "--resume", help="Continue from RUN/checkpoints/last.zip."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster (default: local runtime)."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", help="Local Ray runtime CPUs."),
@@ -59,7 +62,8 @@ def train_command(
     config = TrainConfig(run_dir=run_dir, total_steps=steps, env_id=f"vid2sim/{task}-v0",
                          env_kwargs={"variant": variant}, registry=registry, split_seed=split_seed,
                          train_scenes=train_scenes, n_envs=n_envs, n_actors=n_actors, seed=seed,
-                         checkpoint_every=checkpoint_every, sac=_sac(learning_starts, batch_size, buffer_size))
+                         checkpoint_every=checkpoint_every, action_map=check_map(action_map),
+                         sac=_sac(learning_starts, batch_size, buffer_size))
     if n_actors > 0:
         _ray(ray_address, num_cpus)
     result = train(config, resume=resume)
