@@ -5,6 +5,7 @@
         (defaults: 31 rays over 200 deg, 2.5 m range, speed mapped over the whole action range)
     python benchmarks/learning.py pixel --steps 3000
     python benchmarks/learning.py baselines --trials 25
+    python benchmarks/learning.py failures --runs RUN    # first contact / stop of each held-out trial
     (study: vid2sim study --registry ROOT/registry --counts 1,3 --seeds 2 --env privileged ...)
 
 Scenes: synthetic-street ground-truth bundles (benchmarks/street_registry.py, seeds 1-6); the
@@ -36,7 +37,8 @@ from street_registry import build  # noqa: E402
 from vid2sim.envs.expert import PurePursuitExpert  # noqa: E402
 from vid2sim.registry import Registry  # noqa: E402
 from vid2sim.training.config import SACConfig, TrainConfig  # noqa: E402
-from vid2sim.training.evaluate import EvalConfig, evaluate  # noqa: E402
+from vid2sim.training.evaluate import (EvalConfig, eval_env_config, evaluate, held_out_scenes,  # noqa: E402
+                                       load_policy, run_observation_kwargs)
 from vid2sim.training.privileged import PRIVILEGED_ID  # noqa: E402
 from vid2sim.training.sac import train  # noqa: E402
 from vid2sim.training.wrappers import StuckTermination  # noqa: E402
@@ -166,6 +168,53 @@ def run_heldout(args) -> None:
             report(f"{run.name}/{ckpt.stem}", rep, f"{ckpt.stem.split('_')[1]} env steps")
 
 
+def first_event(env, act, nrays: int, cap: int) -> dict:
+    """Roll one episode until it ends, first touches something, or stands still for 50 steps."""
+    u, still, stops, obs = env.unwrapped, 0, 0, env.unwrapped._obs()
+    obstacles = set(u.actors.obstacles.body_ids) if u.actors.obstacles is not None else set()
+    for t in range(cap):
+        a = act(env, obs)
+        stops += int(a[0] <= 0.0)
+        x0, y0, _ = u.robot_pose()
+        obs, _, terminated, truncated, info = env.step(a)
+        x1, y1, _ = u.robot_pose()
+        still = still + 1 if math.hypot(x1 - x0, y1 - y0) < 0.02 else 0
+        event = info["end"] if terminated or truncated else None
+        if info["collided"]:
+            event = "contact-" + ("obstacle" if set(u.world.physics.contacts()[0]) & obstacles else "street")
+        elif still >= 50:
+            event = "stopped"
+        if event:
+            break
+    mesh = obs[2:2 + nrays] * u.max_range
+    return {"event": event or f"running@{cap}", "steps": t + 1, "goal_m": round(u.distance(), 1),
+            "stop_cmds": round(stops / (t + 1), 2), "speed": round(float(a[0]), 2), "steer": round(float(a[1]), 2),
+            "nearest_m": round(float(mesh.min()), 2), "nearest_deg": round(float(np.degrees(u.angles[mesh.argmin()])))}
+
+
+def run_failures(args) -> None:
+    """Where a run's deterministic policy fails on the held-out episodes: per trial the first contact
+    (street mesh or obstacle), a stop (50 steps without motion) or the end, with its last action."""
+    reg = str(build(args.root, [1, 2, 3, 4, 5, 6]).root)
+    for run in args.runs:
+        config = EvalConfig(registry=reg, policy=str(run), trials=args.trials, env_id=PRIVILEGED_ID,
+                            checkout_root=str(args.root / "checkouts"))
+        env_id, env_conf = eval_env_config(config)
+        scenes = held_out_scenes(config)
+        env = gym.make(env_id, registry=reg, scenes=scenes, config=env_conf, checkout_root=config.checkout_root,
+                       **run_observation_kwargs(str(run)))
+        act, _ = load_policy(str(run), 0)
+        events = Counter()
+        for sid in scenes:
+            for k in range(args.trials):
+                env.reset(seed=config.seed + k, options={"scene_id": sid})
+                row = first_event(env, act, env.unwrapped.n_rays, cap=400)
+                events[row["event"]] += 1
+                print(json.dumps({"run": run.name, "scene": sid, "trial": k, **row}), flush=True)
+        env.close()
+        print(json.dumps({"run": run.name, "events": dict(events)}), flush=True)
+
+
 # ------------------------------------------------------------------ curves
 def tb_curve(run: Path) -> dict[str, list[tuple[int, float]]]:
     """(env step, value) series of training success and return from a run's TensorBoard logs."""
@@ -203,7 +252,8 @@ def run_curve(args) -> None:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("what", choices=["sanity", "privileged", "pixel", "baselines", "curve", "heldout"])
+    ap.add_argument("what", choices=["sanity", "privileged", "pixel", "baselines", "curve", "heldout",
+                                       "failures"])
     ap.add_argument("--root", type=Path, default=Path("/tmp/training-streets"))
     ap.add_argument("--steps", type=int, default=30_000)
     ap.add_argument("--trials", type=int, default=25)
@@ -234,7 +284,7 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     header()
-    {"heldout": run_heldout, "curve": run_curve, "sanity": run_sanity, "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
+    {"failures": run_failures, "heldout": run_heldout, "curve": run_curve, "sanity": run_sanity, "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
     print(f"# load after: {os.getloadavg()[0]:.1f}")
 
 
