@@ -138,6 +138,8 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "physical layer, local step test (no kerb profiles)": (dict(carve=CarveConfig()), LOCAL_STEPS, {}),
     "physical layer, kerb profiles + local step test": (dict(carve=CarveConfig()), dict(max_step_m=0.08), {}),
     "kerb profiles (default) + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
+    "default + depth-edge filter 0.2": (dict(carve=CarveConfig(), edge_rel=0.2), {}, {}),
+    "default + depth-edge filter 0.1": (dict(carve=CarveConfig(), edge_rel=0.1), {}, {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
