@@ -117,8 +117,8 @@ def run(args) -> dict:
 
 NO_CULL = dict(cov_cull_alpha=None)
 # before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
-OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08)
-LOCAL_STEPS = dict(kerb=None, max_step_m=0.08)  # session 18's default: kerbs by the local step test
+OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08, fill_to_obstacles=False)
+LOCAL_STEPS = dict(kerb=None, max_step_m=0.08, fill_to_obstacles=False)  # session 18's default
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
     "baseline (fuse every pixel, no ground growth)": (
         dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0, **OLD), NO_CULL),
@@ -140,6 +140,7 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "kerb profiles (default) + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
     "default + depth-edge filter 0.2": (dict(carve=CarveConfig(), edge_rel=0.2), {}, {}),
     "default + depth-edge filter 0.1": (dict(carve=CarveConfig(), edge_rel=0.1), {}, {}),
+    "default without growth up to obstacles and kerbs": (dict(carve=CarveConfig()), dict(fill_to_obstacles=False), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

@@ -65,3 +65,18 @@ def test_walkable_map_spans_the_sidewalk_to_a_noisy_kerb_and_not_the_road():
     # the local step test (off by default) fires on the noise next to the kerb instead
     local = walkable_map(gp, None, path, WalkableConfig(kerb=None, max_step_m=0.08))
     assert not local.lookup(xs, np.full_like(xs, -0.6)).any()
+
+
+def test_unseen_ground_between_the_walk_and_a_kerb_grows_when_enclosed():
+    """An unseen patch against the kerb whose road side is unseen too: seen ground and the
+    ground beyond the kerb enclose it (fill_to_obstacles), plain hole filling does not."""
+    x, y = np.meshgrid(np.arange(-4.5, 4.5, 0.05) + 0.025, np.arange(-3.0, 2.0, 0.05) + 0.025)
+    z = np.where(y < -1.0, -0.12, 0.0)
+    patch = (x > 0.5) & (x < 1.5) & (y < -0.4)  # unseen sidewalk + road, out to the border
+    gp = np.stack([x[~patch], y[~patch], z[~patch]], 1)
+    path = np.column_stack([PATH, np.full(len(PATH), 1.5)])
+    grown = walkable_map(gp, None, path, WalkableConfig(fill_to_obstacles=True))
+    plain = walkable_map(gp, None, path, WalkableConfig(fill_to_obstacles=False))
+    assert grown.lookup(np.array([1.0]), np.array([-0.55])).all()
+    assert not plain.lookup(np.array([1.0]), np.array([-0.55])).any()
+    assert not grown.lookup(np.array([1.0, 1.0]), np.array([-0.9, -1.5])).any()  # kerb, road

@@ -17,7 +17,8 @@ body band, whatever the body's height; `tests/test_physical_layer.py` checks it 
 Steps:
 1. ground evidence: ground-classified depth pixels back-projected to world (meshing), and
    a corridor of `path_radius_m` around the camera path (someone walked there), rasterised;
-   gaps closed with a disc of `close_radius_m`.
+   gaps closed with a disc of `close_radius_m`; holes grown over (enclosed by seen ground,
+   and after step 4 by seen ground, obstacles and the ground beyond kerbs).
 2. local ground height: median z of the ground points in the cell, median-filtered over
    step_smooth_m, nearest seen cell elsewhere (z = 0 without ground points); the walked
    corridor anchored at one height.
@@ -112,6 +113,10 @@ class WalkableConfig:
     # by obstacles, unseen patches on the walk): the fitted ground surface is continuous there;
     # obstacles and kerb steps still block it afterwards
     fill_holes: bool = True
+    # ... and over unseen cells that seen ground, obstacles and the ground beyond kerbs enclose
+    # together (behind a planter, between it and the kerb; past its far end): demo street
+    # walkable IoU 0.755 -> 0.766, GoPro 15.4 -> 16.6 m^2, nothing else moves
+    fill_to_obstacles: bool = True
     # the walked corridor (camera path swept by this radius) is ground, at one height: the
     # median of the ground points inside it (robust to the per-cell noise, which is worst
     # there, right under the camera); it anchors the local ground heights, and kerb steps
@@ -426,6 +431,10 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
     else:
         blocked = inflate(obstacle_cells((v, f), gz, origin, conf, min_z) | steps,
                           conf.robot_radius_m, res)
+    if conf.fill_holes and conf.fill_to_obstacles:
+        occ = steps | (_rasterise(pts, origin, shape, res) if conf.exact_inflation else
+                       obstacle_cells((v, f), gz, origin, conf, min_z))
+        seen |= ndimage.binary_fill_holes(seen | occ) & ~occ
     free = seen & ~blocked
     path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
                         np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
