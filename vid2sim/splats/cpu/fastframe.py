@@ -196,27 +196,31 @@ def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
     """Copy rows into depth order (qs [n, NQ], bs [n, 4]: the composite then reads them
     nearly sequentially) and list each tile's sorted rows (tiles of 2^shift px): offsets
     [T+1], inst [M] (grown when short: the returned array)."""
-    for k in range(n):  # gather alone: independent loads overlap
-        r = order[k]
-        for c in range(NQ):
-            qs[k, c] = q[r, c]
-        for c in range(4):
-            bs[k, c] = box[r, c]
     offsets[:] = 0
-    for k in range(n):
-        for ty in range(bs[k, 1] >> shift, (bs[k, 3] >> shift) + 1):
-            for tx in range(bs[k, 0] >> shift, (bs[k, 2] >> shift) + 1):
-                offsets[ty * tiles_x + tx + 1] += 1
+    for k in range(n):  # gather (unsigned indices: no wraparound selects) and count per tile
+        r = U64(order[k])
+        uk = U64(k)
+        for c in range(NQ):
+            qs[uk, U64(c)] = q[r, U64(c)]
+        b0, b1, b2, b3 = box[r, U64(0)], box[r, U64(1)], box[r, U64(2)], box[r, U64(3)]
+        bs[uk, U64(0)] = b0
+        bs[uk, U64(1)] = b1
+        bs[uk, U64(2)] = b2
+        bs[uk, U64(3)] = b3
+        for ty in range(b1 >> shift, (b3 >> shift) + 1):
+            for tx in range(b0 >> shift, (b2 >> shift) + 1):
+                offsets[U64(ty * tiles_x + tx + 1)] += 1
     for t in range(n_tiles):
         offsets[t + 1] += offsets[t]
     if inst.shape[0] < offsets[n_tiles]:
         inst = np.empty(2 * offsets[n_tiles], np.int32)
     fill = offsets[:n_tiles].copy()
     for k in range(n):
-        for ty in range(bs[k, 1] >> shift, (bs[k, 3] >> shift) + 1):
-            for tx in range(bs[k, 0] >> shift, (bs[k, 2] >> shift) + 1):
-                t = ty * tiles_x + tx
-                inst[fill[t]] = k
+        uk = U64(k)
+        for ty in range(bs[uk, U64(1)] >> shift, (bs[uk, U64(3)] >> shift) + 1):
+            for tx in range(bs[uk, U64(0)] >> shift, (bs[uk, U64(2)] >> shift) + 1):
+                t = U64(ty * tiles_x + tx)
+                inst[U64(fill[t])] = k
                 fill[t] += 1
     return inst
 
