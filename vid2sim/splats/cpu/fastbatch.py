@@ -2,8 +2,8 @@
 
 The approximate counterpart of `batch.SceneBatch` (same call, same `EnvFrames`; what is traded
 is listed in `fastframe.py`). Scenes are StaticScenes, normally of sim-ready models
-(`simready.sim_ready`: pruned, colours baked); each is packed once into 64-byte float32
-records in its culling-cell (Morton) order. One call renders every camera: workers draw whole
+(`simready.sim_ready`: pruned, colours baked); each is packed once into float32 field
+planes in its culling-cell (Morton) order. One call renders every camera: workers draw whole
 frames from a shared counter (`fastframe.render_fast_frames`).
 """
 
@@ -42,7 +42,7 @@ class FastBatch:
                               + [row0[-1:]]).astype(np.int64)  # [C+1] global rows
         self.packed = pack_splats(cat([s.means for s in scenes]), cat([s.cov for s in scenes]),
                                   cat([s.opacity for s in scenes]),
-                                  cat([s.rgb for s in scenes]))  # [G, NP] float32
+                                  cat([s.rgb for s in scenes]))  # [NP, G] float32 planes
         self.max_rows = max(1, max(len(s.means) for s in scenes))
         self._scratch: Optional[tuple] = None
 

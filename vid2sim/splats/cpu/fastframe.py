@@ -36,14 +36,14 @@ from llvmlite import ir
 from numba import njit, prange, types
 from numba.extending import intrinsic
 
-from ._geom import jac_limits, screen_cov
+from ._geom import LOWPASS, jac_limits
 from ._sched import fetch_add, new_counter
 from .frame import finish_env
 from .static_kernels import frustum_planes, sphere_outside
 
 F32 = np.float32
 U64 = np.uint64
-# packed splat record [G, NP] float32 (model data, view independent)
+# packed splat fields, planes [NP, G] float32 (model data, view independent)
 P_X, P_Y, P_Z, P_S00, P_S01, P_S02, P_S11, P_S12, P_S22, P_O, P_R, P_G, P_B, P_CUT = range(14)
 NP = 16
 # projected splat record [R, NQ] float32 (one camera)
@@ -59,89 +59,121 @@ NS = 4
 
 @njit(cache=True)
 def pack_splats(means, cov, opacity, rgb):
-    """Packed records [G, NP] float32 from means [G, 3], world covariances [G, 6] (xx xy xz
+    """Packed fields as planes [NP, G] float32 (plane P_X holds every splat's x: the
+    projection loads them as vectors) from means [G, 3], world covariances [G, 6] (xx xy xz
     yy yz zz), opacities [G] and colours [G, 3]; P_CUT = min(ln(255 o), S_MAX): the largest
     Gaussian power s = d^T Sigma^-1 d / 2 at which o exp(-s) still reaches 1/255, within the
     exact renderer's 3-sigma cut-off."""
     G = means.shape[0]
-    pk = np.zeros((G, NP), np.float32)
+    pk = np.zeros((NP, G), np.float32)
     for i in range(G):
         for q in range(3):
-            pk[i, P_X + q] = means[i, q]
-            pk[i, P_R + q] = rgb[i, q]
+            pk[P_X + q, i] = means[i, q]
+            pk[P_R + q, i] = rgb[i, q]
         for q in range(6):
-            pk[i, P_S00 + q] = cov[i, q]
+            pk[P_S00 + q, i] = cov[i, q]
         o = opacity[i]
-        pk[i, P_O] = o
-        pk[i, P_CUT] = min(math.log(max(o * 255.0, 1.0)), S_MAX)
+        pk[P_O, i] = o
+        pk[P_CUT, i] = min(math.log(max(o * 255.0, 1.0)), S_MAX)
     return pk
 
 
-@njit(cache=True, fastmath=True, inline="always")
-def _project_one(rec, W, tw, fx, fy, cx, cy, lims, width, height, near, far, cov_alpha, q, box,
-                 j):
-    """Project one packed record into q[j], box[j]; returns 1 when it reaches a pixel."""
-    mx, my, mz = rec[P_X], rec[P_Y], rec[P_Z]
-    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-    if not (tz >= near and tz <= far):
-        return 0
-    ct = rec[P_CUT]
-    if ct <= 0.0:
-        return 0
-    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-    iz = F32(1.0) / tz
+@njit(cache=True, inline="always")
+def _ceil_pos(a, n):
+    """max(ceil(a), 0) for a clamped to [0, n], without a libm call."""
+    a = min(max(a, F32(0.0)), F32(n))
+    t = np.int64(a)
+    return t + np.int64(F32(t) < a)
+
+
+@njit(cache=True, inline="always")
+def _floor_gt(b, n):
+    """floor(b) for b clamped to [-1, n] (any negative value when b < 0), without a libm
+    call."""
+    b = min(max(b, F32(-1.0)), F32(n))
+    return np.int64(b + F32(1.0)) - 1
+
+
+PCH = 64  # splats per projection chunk
+# planes of the chunk buffer: inputs (packed record fields) then outputs
+B_X, B_Y, B_Z, B_S00, B_S01, B_S02, B_S11, B_S12, B_S22, B_CUT = range(10)
+B_PX, B_PY, B_A, B_B, B_C, B_TZ, B_IDET, B_J0, B_J1, B_I0, B_I1, B_OK = range(10, 22)
+NB = 22
+_IN = (P_X, P_Y, P_Z, P_S00, P_S01, P_S02, P_S11, P_S12, P_S22, P_CUT)  # record field of B_k
+
+
+@njit(cache=True, fastmath=True, error_model="numpy")
+def _project_chunk(buf, m, W, tw, fx, fy, cx, cy, lims, width, height, near, far, cov_alpha):
+    """Project the m <= PCH splats in the input planes of buf [NB PCH] into its output
+    planes, with no branch (so the loop vectorises): B_OK is 1 where the splat reaches a
+    pixel, else 0 (the other outputs are then meaningless). float32 throughout."""
     lxp, lxn, lyp, lyn = lims
-    rx = min(max(tx * iz, -lxn), lxp)
-    ry = min(max(ty * iz, -lyn), lyp)
-    j00 = fx * iz
-    j11 = fy * iz
-    j02 = -fx * rx * iz
-    j12 = -fy * ry * iz
-    s00, s01, s02 = rec[P_S00], rec[P_S01], rec[P_S02]
-    s11, s12, s22 = rec[P_S11], rec[P_S12], rec[P_S22]
-    A, B, C = screen_cov(W, j00, j02, j11, j12, s00, s01, s02, s11, s12, s22)
-    det = A * C - B * B
-    if not det > 0.0:
-        return 0
-    if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
-        return 0
-    px = fx * tx * iz + cx
-    py = fy * ty * iz + cy
-    ex = math.sqrt(2.0 * ct * A)
-    ey = math.sqrt(2.0 * ct * C)
-    j0 = max(math.ceil(px - ex - 0.5), 0)
-    j1 = min(math.floor(px + ex - 0.5), width - 1)
-    i0 = max(math.ceil(py - ey - 0.5), 0)
-    i1 = min(math.floor(py + ey - 0.5), height - 1)
-    if j0 > j1 or i0 > i1:
-        return 0
-    idet = 1.0 / det
-    o = q[j]
-    o[Q_X] = px
-    o[Q_Y] = py
-    o[Q_A] = C * idet
-    o[Q_B] = -B * idet
-    o[Q_C] = A * idet
-    o[Q_O] = rec[P_O]
-    o[Q_CUT] = ct
-    o[Q_R] = rec[P_R]
-    o[Q_G] = rec[P_G]
-    o[Q_BL] = rec[P_B]
-    o[Q_Z] = tz
-    o[Q_DET] = idet  # det of the conic (a c - b^2)
-    box[j, 0] = j0
-    box[j, 1] = i0
-    box[j, 2] = j1
-    box[j, 3] = i1
-    return 1
+    wf, hf = F32(width), F32(height)
+    lim_cov = cov_alpha * hf * wf
+    for jj in range(m):
+        j = U64(jj)
+        mx, my, mz = buf[j + U64(B_X * PCH)], buf[j + U64(B_Y * PCH)], buf[j + U64(B_Z * PCH)]
+        ct = buf[j + U64(B_CUT * PCH)]
+        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+        ok = (tz >= near) & (tz <= far) & (ct > F32(0.0))
+        tz1 = tz if ok else F32(1.0)
+        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+        iz = F32(1.0) / tz1
+        rx = min(max(tx * iz, -lxn), lxp)
+        ry = min(max(ty * iz, -lyn), lyp)
+        j00 = fx * iz
+        j11 = fy * iz
+        j02 = -fx * rx * iz
+        j12 = -fy * ry * iz
+        s00, s01, s02 = (buf[j + U64(B_S00 * PCH)], buf[j + U64(B_S01 * PCH)],
+                         buf[j + U64(B_S02 * PCH)])
+        s11, s12, s22 = (buf[j + U64(B_S11 * PCH)], buf[j + U64(B_S12 * PCH)],
+                         buf[j + U64(B_S22 * PCH)])
+        u0, u1, u2 = j00 * W[0] + j02 * W[6], j00 * W[1] + j02 * W[7], j00 * W[2] + j02 * W[8]
+        v0, v1, v2 = j11 * W[3] + j12 * W[6], j11 * W[4] + j12 * W[7], j11 * W[5] + j12 * W[8]
+        su0 = s00 * u0 + s01 * u1 + s02 * u2
+        su1 = s01 * u0 + s11 * u1 + s12 * u2
+        su2 = s02 * u0 + s12 * u1 + s22 * u2
+        A = u0 * su0 + u1 * su1 + u2 * su2 + F32(LOWPASS)
+        B = v0 * su0 + v1 * su1 + v2 * su2
+        C = (v0 * (s00 * v0 + s01 * v1 + s02 * v2) + v1 * (s01 * v0 + s11 * v1 + s12 * v2)
+             + v2 * (s02 * v0 + s12 * v1 + s22 * v2) + F32(LOWPASS))
+        det = A * C - B * B
+        ok = ok & (det > F32(0.0)) & (A > F32(0.0)) & (C > F32(0.0))
+        ok = ok & ((cov_alpha <= F32(0.0)) | (max(abs(A), abs(B), abs(C)) <= lim_cov))
+        px = fx * tx * iz + cx
+        py = fy * ty * iz + cy
+        two_ct = F32(2.0) * ct
+        ex = math.sqrt(max(two_ct * A, F32(0.0)))
+        ey = math.sqrt(max(two_ct * C, F32(0.0)))
+        j0 = _ceil_pos(px - ex - F32(0.5), width)
+        j1 = min(_floor_gt(px + ex - F32(0.5), width), width - 1)
+        i0 = _ceil_pos(py - ey - F32(0.5), height)
+        i1 = min(_floor_gt(py + ey - F32(0.5), height), height - 1)
+        ok = ok & (j0 <= j1) & (i0 <= i1)
+        idet = F32(1.0) / (det if ok else F32(1.0))
+        buf[j + U64(B_PX * PCH)] = px
+        buf[j + U64(B_PY * PCH)] = py
+        buf[j + U64(B_A * PCH)] = C * idet
+        buf[j + U64(B_B * PCH)] = -B * idet
+        buf[j + U64(B_C * PCH)] = A * idet
+        buf[j + U64(B_TZ * PCH)] = tz
+        buf[j + U64(B_IDET * PCH)] = idet
+        buf[j + U64(B_J0 * PCH)] = F32(j0)
+        buf[j + U64(B_J1 * PCH)] = F32(j1)
+        buf[j + U64(B_I0 * PCH)] = F32(i0)
+        buf[j + U64(B_I1 * PCH)] = F32(i1)
+        buf[j + U64(B_OK * PCH)] = F32(1.0) if ok else F32(0.0)
 
 
 @njit(cache=True)
-def cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height, near,
+def cull_project(c0, c1, centers, r_means, rho, cell_start, pl, view, cam, width, height, near,
                  far, cov_alpha, q, box):
     """Project the splats of cells c0:c1 that survive the frustum test into compact rows of
-    q [R, NQ] / box [R, 4] (only splats that reach a pixel); returns (rows, splats tested)."""
+    q [R, NQ] / box [R, 4] (only splats that reach a pixel); returns (rows, splats tested).
+    pl [NP, G]: the packed records as planes (`FastBatch.planes`); each cell is projected in
+    chunks of PCH splats by the vectorised `_project_chunk`, then compacted."""
     W, tw, planes, grow = frustum_planes(view, cam, width, height)
     Wf = (F32(W[0]), F32(W[1]), F32(W[2]), F32(W[3]), F32(W[4]), F32(W[5]), F32(W[6]),
           F32(W[7]), F32(W[8]))
@@ -150,15 +182,44 @@ def cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width
     lp = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     lims = (F32(lp[0]), F32(lp[1]), F32(lp[2]), F32(lp[3]))
     nearf, farf, cova = F32(near), F32(far), F32(cov_alpha)
+    buf = np.empty(NB * PCH, np.float32)
     n = 0
     tested = 0
     for c in range(c0, c1):
         if sphere_outside(centers[c, 0], centers[c, 1], centers[c, 2], r_means[c], rho[c], W,
                           tw, planes, grow, near, far):
             continue
-        for i in range(cell_start[c], cell_start[c + 1]):
-            n += _project_one(pk[i], Wf, twf, fx, fy, cx, cy, lims, width, height, nearf, farf,
-                              cova, q, box, n)
+        for s0 in range(cell_start[c], cell_start[c + 1], PCH):
+            m = min(PCH, cell_start[c + 1] - s0)
+            for k in range(10):
+                f = _IN[k]
+                for jj in range(m):
+                    buf[U64(k * PCH + jj)] = pl[f, U64(s0 + jj)]
+            _project_chunk(buf, m, Wf, twf, fx, fy, cx, cy, lims, width, height, nearf, farf,
+                           cova)
+            for jj in range(m):
+                j = U64(jj)
+                if buf[j + U64(B_OK * PCH)] == F32(0.0):
+                    continue
+                i = U64(s0 + jj)
+                r = U64(n)
+                q[r, Q_X] = buf[j + U64(B_PX * PCH)]
+                q[r, Q_Y] = buf[j + U64(B_PY * PCH)]
+                q[r, Q_A] = buf[j + U64(B_A * PCH)]
+                q[r, Q_B] = buf[j + U64(B_B * PCH)]
+                q[r, Q_C] = buf[j + U64(B_C * PCH)]
+                q[r, Q_O] = pl[P_O, i]
+                q[r, Q_CUT] = buf[j + U64(B_CUT * PCH)]
+                q[r, Q_R] = pl[P_R, i]
+                q[r, Q_G] = pl[P_G, i]
+                q[r, Q_BL] = pl[P_B, i]
+                q[r, Q_Z] = buf[j + U64(B_TZ * PCH)]
+                q[r, Q_DET] = buf[j + U64(B_IDET * PCH)]
+                box[r, 0] = np.int32(buf[j + U64(B_J0 * PCH)])
+                box[r, 1] = np.int32(buf[j + U64(B_I0 * PCH)])
+                box[r, 2] = np.int32(buf[j + U64(B_J1 * PCH)])
+                box[r, 3] = np.int32(buf[j + U64(B_I1 * PCH)])
+                n += 1
         tested += cell_start[c + 1] - cell_start[c]
     return n, tested
 
