@@ -32,10 +32,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from llvmlite import ir
-from numba import njit, prange, types
-from numba.extending import intrinsic
+from numba import njit, prange
 
+from ._bits import popc64
 from ._geom import LOWPASS, jac_limits
 from ._sched import fetch_add, new_counter
 from .frame import finish_env
@@ -284,32 +283,6 @@ def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
                 inst[U64(fill[t])] = k
                 fill[t] += 1
     return inst
-
-
-@intrinsic
-def ctz64(typingctx, x):
-    """Count of trailing zero bits of a uint64 (x != 0)."""
-    if x != types.uint64:
-        return None
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, sig, args):
-        return builder.cttz(args[0], ir.Constant(ir.IntType(1), 1))
-
-    return sig, codegen
-
-
-@intrinsic
-def popc64(typingctx, x):
-    """Number of set bits of a uint64."""
-    if x != types.uint64:
-        return None
-    sig = types.uint64(types.uint64)
-
-    def codegen(context, builder, sig, args):
-        return builder.ctpop(args[0])
-
-    return sig, codegen
 
 
 # exp(-x) = (p(x / 8))^8 with p a degree-4 fit of exp(-t) on [0, 5/8] (relative error weighted
