@@ -7,6 +7,9 @@ rounded to float once) in plain arithmetic, so a loop calling it vectorises and 
 the very same floats as `np.exp`. Checked against `np.exp` on every float32 in [-4.5, 0]
 (the exact composite's domain: s <= S_MAX) and on samples elsewhere
 (tests/test_splats_expf.py). Valid for |x| < 88 (no overflow or underflow handling), finite x.
+It replays glibc >= 2.28 on x86-64 with FMA (this project's machines); under another libm,
+np.exp may differ from it in the last bit, and the exact env frames from `StaticScene.render`
+by that much (test_splats_expf and test_splats_frame would show it).
 """
 
 from __future__ import annotations
