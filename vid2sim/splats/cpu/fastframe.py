@@ -34,7 +34,7 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._bits import popc64
+from ._bits import popc64, prefetch_row
 from ._geom import LOWPASS, jac_limits
 from ._sched import fetch_add, new_counter
 from .frame import finish_env
@@ -51,6 +51,7 @@ NQ = 12
 A_MAX = F32(0.99)
 ALL_BITS = np.uint64(0xFFFFFFFFFFFFFFFF)
 S_MAX = 4.5  # the exact renderer's cut-off on s (3 sigma)
+PF_AHEAD = 16  # the depth-order gather prefetches the record this many rows ahead
 KEY_SHIFT = np.uint32(10)  # depth key: float bits >> 10 (22 bits, two 11-bit radix passes)
 # stats columns per frame: splats in view, tile instances, blends, covered pixels
 NS = 4
@@ -258,6 +259,9 @@ def sort_bin(q, box, n, order, qs, bs, shift, tiles_x, n_tiles, offsets, inst):
     [T+1], inst [M] (grown when short: the returned array)."""
     offsets[:] = 0
     for k in range(n):  # gather (unsigned indices: no wraparound selects) and count per tile
+        if k + PF_AHEAD < n:
+            prefetch_row(q, order[k + PF_AHEAD])
+            prefetch_row(box, order[k + PF_AHEAD])
         r = U64(order[k])
         uk = U64(k)
         for c in range(NQ):
