@@ -21,7 +21,7 @@ from .batch import EnvFrames, check_batch
 from .fastframe import NQ, NS, pack_splats, render_fast_frames
 from .function import camera_arrays
 
-TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px (128x72: 4 x 3 tiles; 20 KB of pixel state)
+TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px, the most it takes (128x72: 4 x 3 tiles)
 T_STOP = 0.02  # default opaque-stop transmittance (benchmarks/env_render.py measures others)
 
 
@@ -66,8 +66,8 @@ class FastBatch:
         transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py), as is
         every pixel whose alpha reaches fill_alpha (1.0: only the stopped ones).
         `blends` is None (only the per-frame total in stats)."""
-        if not 0 <= tile_shift <= 6:
-            raise ValueError("FastBatch.render: tiles are 1 to 64 px (tile_shift 0 to 6)")
+        if not 0 <= tile_shift <= 5:
+            raise ValueError("FastBatch.render: tiles are 1 to 32 px (tile_shift 0 to 5)")
         st, ids = check_batch("FastBatch.render", cameras, scene_ids, len(self.scenes), settings)
         W, H, N = st.width, st.height, len(cameras)
         views = np.empty((N, 4, 4))
