@@ -33,7 +33,8 @@ class KerbConfig:
     lower_m: float = 0.4  # the level after it: median of the bins over this much outward
     max_lateral_m: float = 5.0  # profiles reach this far from the path
     # ground cells a bin needs (a 2 m x 0.1 m bin holds 20): 6 gave walkable IoU 0.755 on
-    # the demo street against 0.728 with 3 (noisier sparse bins fire); GoPro unchanged
+    # the demo street against 0.728 with 3 (noisier sparse bins fire; without the local step
+    # test and the growth up to obstacles); GoPro unchanged
     min_cells: int = 6
     upper: str = "median"  # inward level: "median" or "max" of its bins
     min_drop_m: float = 0.08

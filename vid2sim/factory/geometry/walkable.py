@@ -97,7 +97,7 @@ class WalkableConfig:
     # local step test: ground whose height varies by more than max_step_m (raised to noise_k x
     # the ground noise) within step_window_m blocks like an obstacle; 0 disables. Off by
     # default: on splat ground (+-0.05-0.1 m per cell) it fires on noise beside the walk (demo
-    # street: walkable IoU 0.694 with it, 0.755 without; GoPro 11.5 vs 15.4 m^2, same path
+    # street: walkable IoU 0.703 with it, 0.766 without; GoPro 11.5 vs 16.6 m^2, same path
     # figures); kerbs along the walk are found by `kerb` instead, from profiles aggregated
     # along it. 0.08 (the kerb test of exact depth) to find steps that cross the walk
     max_step_m: float = 0.0
