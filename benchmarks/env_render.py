@@ -42,8 +42,8 @@ from vid2sim.splats import RasterSettings, read_ply  # noqa: E402
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig  # noqa: E402
 from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
 from vid2sim.splats.cpu.fastbatch import TILE_SHIFT, FastBatch  # noqa: E402
-from vid2sim.splats.cpu.fastframe import (NQ, composite_fast, cull_project, depth_order,  # noqa: E402
-                                          exp_table, sort_bin)
+from vid2sim.splats.cpu.fastframe import (NPIX, NQ, composite_fast, cull_project,  # noqa: E402
+                                          depth_order, sort_bin)
 from vid2sim.splats.cpu.binning import _sort_and_bin_serial  # noqa: E402
 from vid2sim.splats.cpu.frame import composite_frame, project_serial  # noqa: E402
 from vid2sim.splats.cpu.function import camera_arrays  # noqa: E402
@@ -246,8 +246,7 @@ def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: 
     shift = TILE_SHIFT
     tile = 1 << shift
     tx, ty = (W + tile - 1) >> shift, (H + tile - 1) >> shift
-    T, acc = np.empty(tile * tile, np.float32), np.empty(4 * tile * tile, np.float32)
-    rdone, ex = np.empty(tile, np.uint64), exp_table()
+    pix, rdone = np.empty(5 * NPIX, np.float32), np.empty(32, np.uint64)
     t = {"cull+project": 0.0, "sort/bin": 0.0, "composite": 0.0}
     st = RasterSettings(W, H)
     in_view, blends, covered = 0, 0, 0
@@ -268,8 +267,8 @@ def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: 
                 x0, y0 = (i % tx) * tile, (i // tx) * tile
                 b += composite_fast(q[1], box[1], off, inst, i, x0, y0, min(x0 + tile, W),
                                     min(y0 + tile, H), np.float32(max(ts, 1e-4)),
-                                    np.float32(max(ts, 1e-4, 1.0 - fill)), ex, T, acc,
-                                    rdone, color, alpha, depth)
+                                    np.float32(max(ts, 1e-4, 1.0 - fill)), pix, rdone,
+                                    color, alpha, depth)
             t3 = time.process_time()
             if rep:
                 for key, dt in zip(t, (t1 - t0, t2 - t1, t3 - t2)):

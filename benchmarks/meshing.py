@@ -117,22 +117,31 @@ def run(args) -> dict:
 
 NO_CULL = dict(cov_cull_alpha=None)
 # before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
-OLD = dict(trim_collision=False, exact_inflation=False)
+OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08, fill_to_obstacles=False)
+LOCAL_STEPS = dict(kerb=None, max_step_m=0.08, fill_to_obstacles=False)  # session 18's default
+NO_EDGE = dict(edge_rel=0.0)  # rows measured before the depth-edge filter became the default
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
     "baseline (fuse every pixel, no ground growth)": (
-        dict(carve=None), dict(fill_holes=False, walked_radius_m=0.0, **OLD), NO_CULL),
-    "+ ground growth": (dict(carve=None), dict(walked_radius_m=0.0, **OLD), NO_CULL),
-    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True)), dict(walked_radius_m=0.0, **OLD), NO_CULL),
-    "+ growth + body carving": (dict(carve=CarveConfig()), dict(walked_radius_m=0.0, **OLD), NO_CULL),
-    "+ growth + body carving + walked ground": (dict(carve=CarveConfig()), OLD, NO_CULL),
-    "+ growth + body carving + walked ground + cov. culling 1e-3": (dict(carve=CarveConfig()), OLD, {}),
+        dict(carve=None, **NO_EDGE), dict(fill_holes=False, walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ ground growth": (dict(carve=None, **NO_EDGE), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + ray carving": (dict(carve=CarveConfig(body=False, rays=True), **NO_EDGE), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + body carving": (dict(carve=CarveConfig(), **NO_EDGE), dict(walked_radius_m=0.0, **OLD), NO_CULL),
+    "+ growth + body carving + walked ground": (dict(carve=CarveConfig(), **NO_EDGE), OLD, NO_CULL),
+    "+ growth + body carving + walked ground + cov. culling 1e-3": (dict(carve=CarveConfig(), **NO_EDGE), OLD, {}),
     "+ collision trimmed below the step (physical layer, default)": (dict(carve=CarveConfig()), {}, {}),
-    "default without trimming (exact inflation only)": (dict(carve=CarveConfig()), dict(trim_collision=False), {}),
-    "default + obstacle bases kept (0.1 m)": (dict(carve=CarveConfig()), dict(base_radius_m=0.1), {}),
-    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True)), OLD, NO_CULL),
-    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2)), OLD, NO_CULL),
-    "default + opacity >= 0.2": (dict(carve=CarveConfig()), {}, dict(min_opacity=0.2)),
-    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig()), OLD, dict(min_opacity=0.2, cov_cull_alpha=None)),
+    "default without trimming (exact inflation only)": (dict(carve=CarveConfig(), **NO_EDGE), dict(trim_collision=False, **LOCAL_STEPS), {}),
+    "default + obstacle bases kept (0.1 m)": (dict(carve=CarveConfig(), **NO_EDGE), dict(base_radius_m=0.1), {}),
+    "+ growth + body + walked ground + ray carving": (dict(carve=CarveConfig(rays=True), **NO_EDGE), OLD, NO_CULL),
+    "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2), **NO_EDGE), OLD, NO_CULL),
+    "default + opacity >= 0.2": (dict(carve=CarveConfig(), **NO_EDGE), {}, dict(min_opacity=0.2)),
+    "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig(), **NO_EDGE), OLD, dict(min_opacity=0.2, cov_cull_alpha=None)),
+    # session 19: kerbs from profiles across the walk (default) vs the local step test
+    "physical layer, local step test (no kerb profiles)": (dict(carve=CarveConfig(), **NO_EDGE), LOCAL_STEPS, {}),
+    "physical layer, kerb profiles + local step test": (dict(carve=CarveConfig(), **NO_EDGE), dict(max_step_m=0.08), {}),
+    "kerb profiles (default) + ray carving": (dict(carve=CarveConfig(rays=True), **NO_EDGE), {}, {}),
+    "default + depth-edge filter 0.2": (dict(carve=CarveConfig(), edge_rel=0.2), {}, {}),
+    "default without the depth-edge filter (session 19 before the switch)": (dict(carve=CarveConfig(), edge_rel=0.0), {}, {}),
+    "default without growth up to obstacles and kerbs": (dict(carve=CarveConfig(), **NO_EDGE), dict(fill_to_obstacles=False), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
@@ -196,6 +205,11 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("near_path_accuracy_median_m", "acc. median <5 m"),
               ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
+              ("gt_walkable_fraction", "GT map: path walkable"), ("gt_clearance_min_m", "GT path clearance m"),
+              ("path_clearance_min_m", "our path clearance m"),
+              ("path_within_robot_radius", "path within robot radius"),
+              ("iou_missed_left_m2", "IoU missed left m2"), ("iou_missed_right_m2", "missed right m2"),
+              ("iou_extra_left_m2", "extra left m2"), ("iou_extra_right_m2", "extra right m2"),
               ("step_m", "step m"), ("mesh_s", "meshing s"), ("carve_s", "of which carving s"),
               ("walkable_s", "physical layer s")]
 

@@ -72,3 +72,17 @@ def test_voxel_scale_face_normals_alone_leave_the_ground(noisy_views):
     obst = sample_surface(*mesh_arrays(obstacles()), 50_000)
     res = build_meshes(views, MeshingConfig(ground_normal_radius_m=0.0))
     assert ground_left(res.collision, obst) > 0.2
+
+
+def test_depth_edges_flag_the_near_side_of_a_silhouette_only():
+    from vid2sim.factory.geometry.meshing import depth_edges
+
+    depth = np.full((40, 40), 8.0, np.float32)  # background wall
+    depth[10:30, 10:30] = 2.0  # a near box
+    depth[:, 35:] = np.linspace(8.0, 8.5, 5)  # a gentle slope: no discontinuity
+    edge = depth_edges(depth, 0.2, 1)
+    ring = np.zeros_like(edge)
+    ring[10:30, 10:30] = True
+    ring[11:29, 11:29] = False
+    assert np.array_equal(edge, ring)  # the box's outermost pixels, not the wall beside them
+    assert not depth_edges(depth, 10.0, 1).any()  # no discontinuity spans 10x the depth

@@ -58,6 +58,18 @@ def test_fast_batch_equals_single_calls(scenes):
         torch.testing.assert_close(out.depth[i], one.depth[0], atol=0, rtol=0)
 
 
+def test_tile_size_does_not_change_the_image(scenes):
+    """16 px tiles (other window starts) give the 32 px tiles' image up to rounding; tiles
+    above 32 px are refused (the SIMD composite's pixel state holds 32 x 32)."""
+    cams, fb = _cams()[:2], FastBatch(scenes[:1])
+    a = fb.render(cams, settings=ST, background=BG, tile_shift=5)
+    b = fb.render(cams, settings=ST, background=BG, tile_shift=4)
+    torch.testing.assert_close(a.rgb, b.rgb, atol=1e-4, rtol=0)
+    assert float(a.alpha.mean()) > 0.2
+    with pytest.raises(ValueError):
+        fb.render(cams, settings=ST, tile_shift=6)
+
+
 def test_opaque_stop_renormalises(scenes):
     """A large t_stop stops pixels early; they read alpha 1 and stay near the exact colour,
     much nearer than leaving the remaining transmittance to the background."""

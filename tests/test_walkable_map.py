@@ -139,10 +139,12 @@ def test_kerb_drop_blocks_like_an_obstacle():
     side = plane_points(-4, 4, -0.5, 2)  # sidewalk at z = 0 (the path is on it)
     road = plane_points(-4, 4, -3, -0.5)
     road[:, 2] = -0.12  # a 12 cm kerb drop at y = -0.5
-    wm = walkable_map(np.concatenate([side, road]), None, PATH, WalkableConfig())
-    assert wm.lookup(np.array([0.0]), np.array([0.5])).all()
-    assert not wm.lookup(np.array([0.0, 0.0]), np.array([-0.5, -2.0])).any()
-    flat = walkable_map(np.concatenate([side, road]), None, PATH, WalkableConfig(max_step_m=0))
+    gp = np.concatenate([side, road])
+    for conf in (WalkableConfig(), WalkableConfig(kerb=None, max_step_m=0.08)):  # kerb profile, local test
+        wm = walkable_map(gp, None, PATH, conf)
+        assert wm.lookup(np.array([0.0]), np.array([0.5])).all()
+        assert not wm.lookup(np.array([0.0, 0.0]), np.array([-0.5, -2.0])).any()
+    flat = walkable_map(gp, None, PATH, WalkableConfig(kerb=None, max_step_m=0))
     assert flat.lookup(np.array([0.0]), np.array([-2.0])).all()
 
 

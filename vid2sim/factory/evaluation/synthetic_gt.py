@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.poses import ate
 from vid2sim.factory.evaluation.geometry_metrics import MeshLike, erode_walkable, grid_iou, mesh_arrays
+from vid2sim.factory.evaluation.walkable_ceiling import ceiling, iou_breakdown, path_clearance
 from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
@@ -53,7 +54,9 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
                  robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000) -> dict:
     """Pose ATE, collision-mesh accuracy (reconstruction -> GT obstacles, m), ground left in the
     collision mesh, and walkable IoU over the walked x range (the first `unseen_m` metres, which a
-    camera 1.5 m up never sees, excluded) against the robot-centre GT map."""
+    camera 1.5 m up never sees, excluded) against the robot-centre GT map; plus the ceiling of
+    the corridor figures on the GT map, the walked path's clearance to our collision surface and
+    the IoU's missed / extra area by side of the path (`walkable_ceiling`)."""
     gt_clip = PosedClip.load(synthetic_dir)
     by_t = {round(f.timestamp, 3): f.cam_to_world[:3, 3] for f in gt_clip.frames}
     frames = [f for f in estimate.frames if round(f.timestamp, 3) in by_t]
@@ -69,14 +72,21 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     gt_map = erode_walkable(WalkableGrid(g, o, r), robot_radius_m)
     path = s * src @ R.T + t
     x0, x1 = path[:, 0].min() + unseen_m, path[:, 0].max()
-    near = near_path_figures(rec, dist, path, gt_clip, scene, collision_mesh_gt(collision, s, R, t))
+    mesh_gt = collision_mesh_gt(collision, s, R, t)
+    near = near_path_figures(rec, dist, path, gt_clip, scene, mesh_gt)
+    gt_path = np.array([f.cam_to_world[:3, 3] for f in gt_clip.frames])  # [T, 3]
+    ours_clear = path_clearance(mesh_gt, path)
+    diag = {**ceiling(gt_map, scene.without_ground(), gt_path, robot_radius_m),
+            "path_clearance_min_m": float(ours_clear.min()),
+            "path_within_robot_radius": float(np.mean(ours_clear < robot_radius_m)),
+            **{f"iou_{k}": v for k, v in iou_breakdown(shifted, gt_map, path, x0, x1).items()}}
     return {"matched_frames": len(frames), "ate_m": pose["rmse"], "ate_pct_of_path": pose["rmse_pct_of_path"],
             "metric_scale_error_pct": 100 * abs(s - 1.0),
             "collision_accuracy_m": float(dist.mean()),
             "collision_accuracy_median_m": float(np.median(dist)),
             "ground_left_frac": float(np.mean((rec[:, 2] < 0.15) & (dist > 0.2))),
             "walkable_iou": grid_iou(crop_x(shifted, x0, x1), crop_x(gt_map, x0, x1)),
-            "iou_x_range": [float(x0), float(x1)], "walkable_area_m2": walkable.area_m2(), **near}
+            "iou_x_range": [float(x0), float(x1)], "walkable_area_m2": walkable.area_m2(), **near, **diag}
 
 
 def collision_mesh_gt(collision: MeshLike, s: float, R: np.ndarray, t: np.ndarray

@@ -99,6 +99,13 @@ class MeshingConfig:
     target_faces: int = 100_000  # physics-friendly collision mesh (quadric decimation)
     visual_target_faces: int = 300_000  # visual (coloured) mesh budget
     ground_point_cell_m: float = 0.05  # ground points kept: one per xy cell of this size
+    # depth-edge filter (`depth_edges`): near-side pixels within edge_px of a depth
+    # discontinuity larger than edge_rel x their depth are not fused (silhouette fattening of
+    # splat depth); 0 disables. At 0.1 the demo street's path goes 93.5 -> 97.1 % walkable,
+    # the GoPro corridor 0.044 -> 0 m^2 (path 83.3 -> 92.8 %), accuracy median 0.053 -> 0.049 m,
+    # at 0.6 points of completeness (86.8 -> 86.2 %, on car and facade silhouettes; README)
+    edge_rel: float = 0.1
+    edge_px: int = 1
     # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
     carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
 
@@ -239,7 +246,24 @@ def clamped_depth(view: DepthView, idx: int, conf: MeshingConfig) -> np.ndarray:
     valid = check_view(view, idx)
     depth = np.where(valid, view.depth, 0.0).astype(np.float32)
     depth[(depth < conf.depth_min_m) | (depth > conf.depth_max_m)] = 0.0
+    if conf.edge_rel > 0:
+        depth[depth_edges(depth, conf.edge_rel, conf.edge_px)] = 0.0
     return depth
+
+
+def depth_edges(depth: np.ndarray, rel: float, radius_px: int) -> np.ndarray:
+    """[H, W] bool valid pixels on the near side of a depth discontinuity: within radius_px of
+    it (the valid depths of the (2 radius_px + 1)^2 window span more than rel x the pixel's
+    depth) and closer to the window's nearest depth than to its farthest. Splat depth blends
+    a foreground surface into the background across its silhouette (edge fattening): those
+    pixels carry the near depth on the far side of the true edge."""
+    from scipy import ndimage
+
+    valid = depth > 0
+    k = 2 * radius_px + 1
+    hi = ndimage.maximum_filter(np.where(valid, depth, 0.0), size=k)
+    lo = ndimage.minimum_filter(np.where(valid, depth, np.inf), size=k)
+    return valid & (hi - lo > rel * depth) & (depth - lo < hi - depth)
 
 
 def carved_depths(views: list[DepthView], conf: MeshingConfig) -> list[np.ndarray]:

@@ -2,8 +2,8 @@
 
 The approximate counterpart of `batch.SceneBatch` (same call, same `EnvFrames`; what is traded
 is listed in `fastframe.py`). Scenes are StaticScenes, normally of sim-ready models
-(`simready.sim_ready`: pruned, colours baked); each is packed once into 64-byte float32
-records in its culling-cell (Morton) order. One call renders every camera: workers draw whole
+(`simready.sim_ready`: pruned, colours baked); each is packed once into float32 field
+planes in its culling-cell (Morton) order. One call renders every camera: workers draw whole
 frames from a shared counter (`fastframe.render_fast_frames`).
 """
 
@@ -21,7 +21,7 @@ from .batch import EnvFrames, check_batch
 from .fastframe import NQ, NS, pack_splats, render_fast_frames
 from .function import camera_arrays
 
-TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px (128x72: 4 x 3 tiles; 20 KB of pixel state)
+TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px, the most it takes (128x72: 4 x 3 tiles)
 T_STOP = 0.02  # default opaque-stop transmittance (benchmarks/env_render.py measures others)
 
 
@@ -42,7 +42,7 @@ class FastBatch:
                               + [row0[-1:]]).astype(np.int64)  # [C+1] global rows
         self.packed = pack_splats(cat([s.means for s in scenes]), cat([s.cov for s in scenes]),
                                   cat([s.opacity for s in scenes]),
-                                  cat([s.rgb for s in scenes]))  # [G, NP] float32
+                                  cat([s.rgb for s in scenes]))  # [NP, G] float32 planes
         self.max_rows = max(1, max(len(s.means) for s in scenes))
         self._scratch: Optional[tuple] = None
 
@@ -66,8 +66,8 @@ class FastBatch:
         transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py), as is
         every pixel whose alpha reaches fill_alpha (1.0: only the stopped ones).
         `blends` is None (only the per-frame total in stats)."""
-        if not 0 <= tile_shift <= 6:
-            raise ValueError("FastBatch.render: tiles are 1 to 64 px (tile_shift 0 to 6)")
+        if not 0 <= tile_shift <= 5:
+            raise ValueError("FastBatch.render: tiles are 1 to 32 px (tile_shift 0 to 5)")
         st, ids = check_batch("FastBatch.render", cameras, scene_ids, len(self.scenes), settings)
         W, H, N = st.width, st.height, len(cameras)
         views = np.empty((N, 4, 4))

@@ -8,7 +8,9 @@ the call and scheduling overhead once.
 
 Outputs are what an env reads: rgb over the background, alpha and expected depth
 (depth_acc / alpha, 0 where empty). With `blend_cap = 0` they equal `StaticScene.render`
-(same arithmetic, same order; tests/test_splats_frame.py); `blend_cap > 0` stops each pixel
+bit for bit (same arithmetic, same order; tests/test_splats_frame.py): the composite blends
+each splat row in SIMD windows of 8 pixels without branches, with `_expf.expf_glibc`, a
+vectorisable replay of glibc's expf that gives the same floats as `np.exp`; `blend_cap > 0` stops each pixel
 after that many blended splats (an approximation: the remaining transmittance shows the
 background).
 
@@ -22,6 +24,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ._bits import popc64
+from ._expf import expf_glibc
 from ._geom import jac_limits
 from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
@@ -68,30 +72,81 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
             gb[k, q] = box[v, q]
 
 
-@njit(cache=True)
-def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt, live,
-                   rdone, color, alpha, depth, blends_px, contrib):
+XLANES = 8  # pixels per vector window of a splat row
+XROW = 64 + XLANES  # row stride of the tile's pixel planes (tiles of at most 64 x 64 px)
+XNPIX = 64 * XROW  # floats per plane
+X1, X2, X3, X4, X5, X6 = (np.uint64(i * XNPIX) for i in range(1, 7))  # planes of pix after T:
+# r g b z, blend count (float32: exact below 2^24), weight of the last window
+U64 = np.uint64
+
+
+@njit(cache=True, inline="always")
+def _xwindow(pix, pb, px0, livebits, last, mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2,
+             c3, cap, t_stop):
+    """Blend one splat into XLANES pixels of a row, lane j = pixel px0 + j at plane index
+    pb + j, with the arithmetic and order of `StaticScene.render` per pixel but no branch
+    (so it vectorises; expf_glibc equals np.exp bit for bit): lanes that are stopped (bit j
+    of livebits clear), beyond the box (j > last), outside the cut-off, below A_MIN or
+    reaching T_MIN take no weight. pix[p + X6] gets lane j's weight (one buffer for all
+    the state at fixed offsets: the vectoriser needs no alias checks). Returns bits:
+    bit j where lane j blended, bit 32 + j where it stopped."""
+    bits = U64(0)
+    for j in range(XLANES):
+        p = pb + U64(j)
+        dx = (F32(px0 + j) + HALF) - mx
+        sv = HALF * (ca * dx * dx + ccdy2) + cb * dx * dy
+        cand = ((livebits >> U64(j)) & U64(1) == U64(1)) & (U64(j) <= last) & (sv >= ZERO) & (
+            sv <= ct)
+        e = expf_glibc(-sv)  # garbage (even inf / nan) outside [0, ct]: masked below
+        oe = o * e
+        al = A_MAX if A_MAX < oe else oe  # min(A_MAX, o e) as raster.py
+        ok = cand & (al >= A_MIN)
+        Tp = pix[p]
+        Tn = Tp * (ONE - al)
+        dead = Tn < T_MIN
+        blend = ok & (Tn >= T_MIN)
+        w = al * Tp if blend else ZERO
+        pix[p + X1] += w * c0
+        pix[p + X2] += w * c1
+        pix[p + X3] += w * c2
+        pix[p + X4] += w * c3
+        pix[p] = Tn if blend else Tp
+        cn = pix[p + X5] + (ONE if blend else ZERO)
+        pix[p + X5] = cn
+        stop = (ok & dead) | (blend & ((cn >= cap) | (Tn < t_stop)))
+        pix[p + X6] = w
+        bits |= (U64(blend) << U64(j)) | (U64(stop) << U64(32 + j))
+    return bits
+
+
+@njit(cache=True, error_model="numpy")
+def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, pix, rdone, color,
+                   alpha, depth, blends_px, contrib):
     """Blend one tile's depth-sorted splats (splat-major, per-pixel early termination).
 
-    T [P], acc [P, 4], cnt [P], live [P], rdone [tile rows] (bit px - x0: stopped) are scratch; writes color
-    [H, W, 3] (premultiplied), alpha [H, W], depth [H, W] (accumulated z) and blends_px
-    [H, W] (blended splats per pixel). contrib [R] (size 0: skipped) gains each splat's
-    blend weights alpha * T at its row inst[s+k]. t_stop > 0 (approximate) also stops a
-    pixel once its transmittance falls below t_stop (colour error <= t_stop). Returns the
-    number of blends."""
+    pix [7 XNPIX] (planes T r g b z count weight, rows of XROW) and
+    rdone [64] (bit px - x0: stopped) are scratch; writes color [H, W, 3] (premultiplied),
+    alpha [H, W], depth [H, W] (accumulated z) and blends_px [H, W] (blended splats per
+    pixel). contrib [R] (size 0: skipped) gains each splat's blend weights alpha * T at its
+    row inst[s+k]. t_stop > 0 (approximate) also stops a pixel once its transmittance falls
+    below t_stop (colour error <= t_stop). Each splat row is blended in SIMD windows of
+    XLANES pixels (`_xwindow`: the same floats as the per-pixel loop of `raster.py`).
+    Returns the number of blends."""
     tw = x1 - x0
-    npx = tw * (y1 - y0)
-    for p in range(npx):
-        T[p] = ONE
-        cnt[p] = 0
-        live[p] = True
-        for c in range(4):
-            acc[p, c] = ZERO
-    for r in range(y1 - y0):
+    th = y1 - y0
+    for i in range(th * XROW):
+        p = U64(i)
+        pix[p] = ONE
+        pix[p + X1] = ZERO
+        pix[p + X2] = ZERO
+        pix[p + X3] = ZERO
+        pix[p + X4] = ZERO
+        pix[p + X5] = ZERO
+    for r in range(th):
         rdone[r] = 0
-    cap = blend_cap if blend_cap > 0 else 1 << 30
+    cap = F32(blend_cap if blend_cap > 0 else 1 << 30)
     want_contrib = contrib.shape[0] > 0
-    n_live = npx
+    n_live = tw * th
     blends = 0
     for k in range(n):
         bx0 = max(gb[k, 0], x0)
@@ -104,57 +159,41 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc,
         o, ct = g[5, k], g[6, k]
         c0, c1, c2, c3 = g[7, k], g[8, k], g[9, k], g[10, k]
         wsum = ZERO
-        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
+        lo = bx0 - x0
+        hi = bx1 - 1 - x0
+        span = (ALL_BITS >> U64(63 - (hi - lo))) << U64(lo)
         for py in range(by0, by1):
-            if rdone[py - y0] & span == span:
+            ry = py - y0
+            if rdone[ry] & span == span:
                 continue  # every pixel of this row's span has stopped
             dy = (F32(py) + HALF) - my
-            row = (py - y0) * tw - x0
-            for px in range(bx0, bx1):
-                p = row + px
-                if not live[p]:
-                    continue
-                dx = (F32(px) + HALF) - mx
-                sv = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                if sv < ZERO or sv > ct:
-                    continue
-                al = min(A_MAX, o * np.exp(-sv))
-                if al < A_MIN:
-                    continue
-                Tp = T[p]
-                Tn = Tp * (ONE - al)
-                if Tn < T_MIN:
-                    live[p] = False
-                    rdone[py - y0] |= np.uint64(1) << np.uint64(px - x0)
-                    n_live -= 1
-                    continue
-                w = al * Tp
-                a = acc[p]
-                a[0] += w * c0
-                a[1] += w * c1
-                a[2] += w * c2
-                a[3] += w * c3
-                wsum += w
-                T[p] = Tn
-                cnt[p] += 1
-                blends += 1
-                if cnt[p] >= cap or Tn < t_stop:
-                    live[p] = False
-                    rdone[py - y0] |= np.uint64(1) << np.uint64(px - x0)
-                    n_live -= 1
+            ccdy2 = cc * dy * dy
+            rb = ry * XROW
+            for c in range(lo, hi + 1, XLANES):
+                bits = _xwindow(pix, U64(rb + c), x0 + c, ~rdone[ry] >> U64(c),
+                                U64(hi - c), mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2, c3, cap,
+                                t_stop)
+                blends += np.int64(popc64(bits & U64(0xFFFFFFFF)))
+                stop = (bits >> U64(32)) << U64(c)
+                rdone[ry] |= stop
+                n_live -= np.int64(popc64(stop))
+                if want_contrib:
+                    for j in range(XLANES):
+                        wsum += pix[U64(rb + c + j) + X6]
         if want_contrib and wsum > ZERO:
             contrib[inst[s + k]] += wsum
         if n_live == 0:
             break
     for py in range(y0, y1):
+        rb = (py - y0) * XROW - x0
         for px in range(x0, x1):
-            p = (py - y0) * tw + px - x0
-            color[py, px, 0] = acc[p, 0]
-            color[py, px, 1] = acc[p, 1]
-            color[py, px, 2] = acc[p, 2]
-            alpha[py, px] = ONE - T[p]
-            depth[py, px] = acc[p, 3]
-            blends_px[py, px] = cnt[p]
+            p = U64(rb + px)
+            color[py, px, 0] = pix[p + X1]
+            color[py, px, 1] = pix[p + X2]
+            color[py, px, 2] = pix[p + X3]
+            alpha[py, px] = ONE - pix[p]
+            depth[py, px] = pix[p + X4]
+            blends_px[py, px] = np.int32(pix[p + X5])
     return blends
 
 
@@ -169,12 +208,8 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
         cap = max(cap, offsets[t + 1] - offsets[t])
     g = np.empty((11, cap), np.float32)
     gb = np.empty((cap, 4), np.int32)
-    npx = tile * tile
-    T = np.empty(npx, np.float32)
-    acc = np.empty((npx, 4), np.float32)
-    cnt = np.empty(npx, np.int32)
-    live = np.empty(npx, np.bool_)
-    rdone = np.empty(tile, np.uint64)
+    pix = np.empty(7 * XNPIX, np.float32)
+    rdone = np.empty(64, np.uint64)
     blends = 0
     for t in range(n_tiles):
         s = offsets[t]
@@ -183,8 +218,8 @@ def composite_frame(fo, box, offsets, inst, width, height, tile, blend_cap, t_st
         y0 = (t // tiles_x) * tile
         x1, y1 = min(x0 + tile, width), min(y0 + tile, height)
         _gather_tile(fo, box, inst, s, n, g, gb)
-        blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, T, acc, cnt,
-                                 live, rdone, color, alpha, depth, blends_px, contrib)
+        blends += composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, pix, rdone,
+                                 color, alpha, depth, blends_px, contrib)
     return blends
 
 
