@@ -106,3 +106,19 @@ def test_episode_ends_keep_end_clearance_and_avoid_narrow_spurs():
             assert ends[p.to_cell(x, y)]
     narrow = GridPlanner(Grid(g[:, 100:108], np.zeros(2), 0.1), clearance=0.3)
     assert np.array_equal(end_cells(narrow, 0.45), narrow.free)  # no such cell: the free ones
+
+
+def test_far_end_restart_stays_on_end_cells():
+    from vid2sim.envs.config import EpisodeConfig
+    from vid2sim.envs.episodes import end_cells, sample_episode
+    g = np.zeros((14, 100), np.uint8)
+    g[:, :90] = 1  # a 9 m x 1.4 m corridor ...
+    g[5:9, 90:] = 1  # ... ending in a 1 m, 0.4 m wide stub: the farthest free cells
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1), clearance=0.1)
+    ends = end_cells(p, 0.5)
+    assert p.free[:, 92:].any() and not ends[:, 90:].any()
+    rng = np.random.default_rng(1)
+    for _ in range(10):  # most random starts reach no cell 7 m away: restarted from the far end
+        ep = sample_episode(p, rng, (7.0, 9.0), EpisodeConfig(), ends=ends)
+        for x, y in (ep.start, ep.goal):
+            assert ends[p.to_cell(x, y)]

@@ -80,8 +80,8 @@ def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[f
     for _ in range(MAX_TRIES):
         start = _sample_cell(planner, ends, rng)
         d = planner.distance_field(start)  # [H, W] m
-        if not np.any(np.isfinite(d) & (d >= lo)):  # a start in the middle of a narrow map:
-            start = _farthest(planner, d, rng)  # restart from the far end (a double sweep)
+        if not np.any(np.isfinite(d) & (d >= lo) & ends):  # a start in the middle of a narrow
+            start = _farthest(planner, d, ends, rng)  # map: restart from its far end (double sweep)
             d = planner.distance_field(start)
         rows, cols = np.nonzero((d >= lo) & (d <= 1.1 * hi) & ends)  # the smoothed path is shorter
         if len(rows) == 0:
@@ -107,9 +107,14 @@ def _sample_cell(planner: GridPlanner, cells: np.ndarray, rng: np.random.Generat
     return float(p[0]), float(p[1])
 
 
-def _farthest(planner: GridPlanner, d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
-    """A random point in the cell farthest (geodesic distance field d [H, W]) from a start."""
-    far = np.unravel_index(np.argmax(np.where(np.isfinite(d), d, -1.0)), d.shape)
+def _farthest(planner: GridPlanner, d: np.ndarray, ends: np.ndarray, rng: np.random.Generator
+              ) -> tuple[float, float]:
+    """A random point in the end cell (ends [H, W] bool; any cell when none is reachable)
+    farthest (geodesic distance field d [H, W]) from a start."""
+    reach = np.isfinite(d)
+    if (reach & ends).any():
+        reach &= ends
+    far = np.unravel_index(np.argmax(np.where(reach, d, -1.0)), d.shape)
     p = planner.to_world(*far) + rng.uniform(-0.4, 0.4, size=2) * planner.resolution
     return float(p[0]), float(p[1])
 
