@@ -238,6 +238,20 @@ def test_expert_steers_off_arcs_that_leave_the_map(registry):
     env.close()
 
 
+def test_expert_tries_other_steering_when_blocked(registry):
+    """An act at an unchanged pose (the last action was blocked) steers differently."""
+    env = make(registry, training=False)
+    env.reset(seed=0)
+    expert = PurePursuitExpert()
+    expert.reset(env)
+    first = expert.act(env)
+    second = expert.act(env)  # no step: the pose did not change
+    assert second[1] != first[1] and abs(second[1]) == 1.0 and np.sign(second[1]) != np.sign(first[1])
+    env.step(second)
+    assert expert.act(env)[1] == pytest.approx(first[1], abs=0.5)  # moving again: pursuit
+    env.close()
+
+
 def test_topdown_state_keys(registry):
     env = make(registry)
     env.reset(seed=1)

@@ -3,7 +3,10 @@
 Pure pursuit (Coulter 1992) for the kinematic bicycle: steer = atan(2 L sin(alpha) / l_d),
 alpha the bearing of the look-ahead point on the path, l_d its distance. Speed is reduced
 in sharp turns. The path comes from `NavEnv.expert_path()` (A* on the clearance-inflated map,
-obstacles blocked), so the expert also serves demonstrations.
+obstacles blocked), so the expert also serves demonstrations. Before acting it checks the
+constant-steer arc on the walkable map (`_safe_steer`: pure pursuit cuts corners, A* ignores
+the 1.4 m turning circle); when its last action left the pose unchanged (blocked by the mesh:
+the physics undoes moves that push further in) it tries full steering the other way.
 """
 
 from __future__ import annotations
@@ -29,11 +32,14 @@ class PurePursuitExpert:
         self.config = config
         self.path: Optional[np.ndarray] = None  # [K, 2]
         self.index = 0
+        self.last: Optional[tuple] = None  # (pose, action) of the previous act
+        self.stuck = 0
 
     def reset(self, env) -> None:
         """Take the path of the episode that env (a NavEnv, possibly wrapped) just reset into."""
         self.path = np.asarray(env.unwrapped.expert_path(), np.float64)
         self.index = 0
+        self.last, self.stuck = None, 0
 
     def act(self, env) -> np.ndarray:
         """Action [2] (speed, steering) in [-1, 1] for the current robot pose."""
@@ -49,6 +55,13 @@ class PurePursuitExpert:
         slow = min(abs(alpha) / math.radians(c.slow_angle_deg), 1.0)
         speed = 1.0 - (1.0 - c.min_speed) * slow
         steer_n = _safe_steer(u, float(np.clip(steer / robot.max_steer, -1.0, 1.0)), c)
+        pose = (x, y, yaw)
+        if self.last is not None and self.last[0] == pose:  # blocked by the mesh: try other steering
+            self.stuck += 1
+            steer_n = (-1.0 if self.last[1] >= 0 else 1.0) if self.stuck % 2 else float(-self.last[1])
+        else:
+            self.stuck = 0
+        self.last = (pose, steer_n)
         return np.array([speed, steer_n], np.float32)
 
     def _target(self, p: np.ndarray) -> np.ndarray:
