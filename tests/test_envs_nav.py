@@ -135,6 +135,26 @@ def test_fast_fidelity_defaults_shared_set_and_agreement(registry):
     torch.testing.assert_close(again.unwrapped.world.view.sim.model.means, sim.model.means)
 
 
+def test_exact_view_draws_through_the_frame_kernel_bit_for_bit(registry):
+    """The exact env view renders through SceneBatch; the pixels equal StaticScene.render's."""
+    from vid2sim.envs.rendering import view_outputs
+    from vid2sim.envs.camera import splat_camera
+
+    env = make(registry, training=False)
+    env.reset(seed=5)
+    view = env.unwrapped.world.view
+    assert view.batch is not None
+    for step in range(3):
+        env.step(np.array([1.0, 0.3], np.float32))
+        w2c = env.unwrapped.last_world_to_cam
+        rgb, depth = view.draw(w2c)
+        out = view.scene.render(splat_camera(view.conf, w2c), view.settings)
+        ref_rgb, ref_depth = view_outputs(out.rgb, out.depth, out.alpha)
+        assert rgb.any()
+        assert np.array_equal(rgb, ref_rgb)
+        assert np.array_equal(depth, ref_depth)
+
+
 def test_sweep_check_same_as_substep_queries(registry):
     """One contact query per clear control step gives the substep loop's episode exactly."""
     fast, ref = make(registry), make(registry, sweep_check=False)

@@ -21,6 +21,7 @@ from vid2sim.envs.scenes import MeshData, SceneAssets
 from vid2sim.envs.simready import SimReadySet, sim_ready_set
 from vid2sim.splats import GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
+from vid2sim.splats.cpu.batch import SceneBatch
 
 EMPTY_ALPHA = 0.5
 
@@ -37,19 +38,26 @@ def view_outputs(rgb: torch.Tensor, depth: torch.Tensor, alpha: torch.Tensor
 
 
 class SplatView:
-    """Splat renderer for one scene (not thread-safe: one StaticScene per env)."""
+    """Exact splat renderer for one scene (not thread-safe: one StaticScene per env). Without LOD
+    it draws through the whole-frame kernel (`SceneBatch`: the same pixels as
+    `StaticScene.render`, bit for bit, in one numba call); with LOD through `StaticScene.render`."""
 
     def __init__(self, model: GaussianModel, conf: CameraConfig, lod: bool = False) -> None:
         self.conf = conf
         self.K = intrinsics(conf)
         self.scene = StaticScene(model, StaticSceneConfig(lod=lod, per_splat_outputs=False))
+        self.batch = None if lod else SceneBatch([self.scene])
         self.settings = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
                                        cov_cull_alpha=conf.cov_cull_alpha,
                                        active_sh_degree=model.sh_degree)
 
     def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out = self.scene.render(splat_camera(self.conf, world_to_cam), self.settings)
-        return view_outputs(out.rgb, out.depth, out.alpha)
+        camera = splat_camera(self.conf, world_to_cam)
+        if self.batch is None:
+            out = self.scene.render(camera, self.settings)
+            return view_outputs(out.rgb, out.depth, out.alpha)
+        frames = self.batch.render([camera], settings=self.settings, n_workers=1)
+        return view_outputs(frames.rgb[0], frames.depth[0], frames.alpha[0])
 
 
 class FastSplatView:
