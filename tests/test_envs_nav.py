@@ -20,7 +20,7 @@ from stable_baselines3.common.env_checker import check_env as sb3_check_env
 import vid2sim.envs  # noqa: F401  (registers the env ids)
 from vid2sim.envs import simready
 from vid2sim.envs.config import FastRenderConfig, RobotConfig
-from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.expert import ExpertConfig, PurePursuitExpert, _arc_on_map, _safe_steer
 from vid2sim.envs.nav_env import InvalidActionError, NavEnv
 from vid2sim.envs.physics import PhysicsWorld, RobotState
 from vid2sim.envs.scenes import SceneError, load_scene
@@ -237,6 +237,39 @@ def test_expert_reaches_goals_and_episode_record(registry):
         ends.append(rec.end)
         assert rec.steps == info["steps"] and rec.path_length > 0
     assert ends == ["success", "success"]
+
+
+def test_expert_steers_off_arcs_that_leave_the_map(registry):
+    """Facing the map's edge, the expert's steering keeps its checked arc on the walkable map."""
+    env = make(registry, training=False)
+    env.reset(seed=0)
+    u, conf = env.unwrapped, ExpertConfig(horizon=2.0)
+    x, y = u.episode.start
+    checked = 0
+    for yaw in np.radians(np.arange(0, 360, 30)):
+        u.state = RobotState(float(x), float(y), float(yaw))
+        if _arc_on_map(u, 0.0, conf.horizon) >= conf.horizon:
+            continue  # straight ahead stays on the map: nothing to correct
+        s = _safe_steer(u, 0.0, conf)
+        if any(_arc_on_map(u, c, conf.horizon) >= conf.horizon for c in np.linspace(-1, 1, 9)):
+            assert s != 0.0 and _arc_on_map(u, s, conf.horizon) >= conf.horizon
+            checked += 1
+    assert checked > 0
+    env.close()
+
+
+def test_expert_tries_other_steering_when_blocked(registry):
+    """An act at an unchanged pose (the last action was blocked) steers differently."""
+    env = make(registry, training=False)
+    env.reset(seed=0)
+    expert = PurePursuitExpert()
+    expert.reset(env)
+    first = expert.act(env)
+    second = expert.act(env)  # no step: the pose did not change
+    assert second[1] != first[1] and abs(second[1]) == 1.0 and np.sign(second[1]) != np.sign(first[1])
+    env.step(second)
+    assert expert.act(env)[1] == pytest.approx(first[1], abs=0.5)  # moving again: pursuit
+    env.close()
 
 
 def test_topdown_state_keys(registry):

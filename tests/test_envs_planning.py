@@ -87,3 +87,38 @@ def test_sample_free_is_reproducible_and_free():
     assert all(p.is_free(*p.sample_free(rng)) for _ in range(50))
     with pytest.raises(ValueError, match="no free cell"):
         GridPlanner(Grid(np.zeros((3, 3), np.uint8), np.zeros(2), 0.1)).sample_free(rng)
+
+
+def test_episode_ends_keep_end_clearance_and_avoid_narrow_spurs():
+    from vid2sim.envs.config import EpisodeConfig
+    from vid2sim.envs.episodes import end_cells, sample_episode
+    g = np.zeros((60, 200), np.uint8)
+    g[20:, :] = 1  # 20 m x 4 m open ground
+    g[:20, 100:108] = 1  # a 0.8 m wide, 2 m deep spur: free at 0.3 m clearance, not at 0.45 m
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1), clearance=0.3)
+    ends = end_cells(p, 0.45)
+    assert p.free[:20].any() and not ends[:20].any() and ends[20:].any()
+    assert not (ends & ~p.free).any()
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        ep = sample_episode(p, rng, (5.0, 15.0), EpisodeConfig(), ends=ends)
+        for x, y in (ep.start, ep.goal):
+            assert ends[p.to_cell(x, y)]
+    narrow = GridPlanner(Grid(g[:, 100:108], np.zeros(2), 0.1), clearance=0.3)
+    assert np.array_equal(end_cells(narrow, 0.45), narrow.free)  # no such cell: the free ones
+
+
+def test_far_end_restart_stays_on_end_cells():
+    from vid2sim.envs.config import EpisodeConfig
+    from vid2sim.envs.episodes import end_cells, sample_episode
+    g = np.zeros((14, 100), np.uint8)
+    g[:, :90] = 1  # a 9 m x 1.4 m corridor ...
+    g[5:9, 90:] = 1  # ... ending in a 1 m, 0.4 m wide stub: the farthest free cells
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1), clearance=0.1)
+    ends = end_cells(p, 0.5)
+    assert p.free[:, 92:].any() and not ends[:, 90:].any()
+    rng = np.random.default_rng(1)
+    for _ in range(10):  # most random starts reach no cell 7 m away: restarted from the far end
+        ep = sample_episode(p, rng, (7.0, 9.0), EpisodeConfig(), ends=ends)
+        for x, y in (ep.start, ep.goal):
+            assert ends[p.to_cell(x, y)]

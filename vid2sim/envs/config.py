@@ -100,6 +100,11 @@ class EpisodeConfig:
     # m kept from blocked cells by episodes and the expert (robot half-width 0.3 + tracking
     # margin), minus what the factory already inflated the map by (its robot_radius_m)
     clearance: float = 0.45
+    # m kept from blocked cells by the start and the goal (same convention): the box's
+    # half-diagonal (0.54 m) and a margin, so the robot touches nothing at the start whatever
+    # its yaw and is not sent into spurs narrower than it can turn in (its turning circle is
+    # 1.4 m); a map with no such cell falls back to `clearance`
+    end_clearance: float = 0.6
     start_yaw_noise_deg: float = 15.0
     pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS

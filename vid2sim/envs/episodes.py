@@ -1,6 +1,7 @@
 """Episode sampling: start and goal on the walkable map joined by an A* path of a given length.
 
-A random start from which no goal lies far enough (the middle of a narrow map whose longest
+Start and goal lie on `ends` cells when given (cells `EpisodeConfig.end_clearance` from blocked
+ones, where the robot can turn; `end_cells`), else on the planner's free cells. A random start from which no goal lies far enough (the middle of a narrow map whose longest
 path is close to the range's lower end) is moved to the farthest point from it.
 
 Geodesic range: 10-30 m (the paper) when the map's longest A* path allows, else from 70 % of
@@ -12,12 +13,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 from scipy import ndimage
 
 from vid2sim.envs.config import EpisodeConfig
-from vid2sim.envs.planning import GridPlanner, path_length
+from vid2sim.envs.planning import GridPlanner, inflate, path_length
 from vid2sim.envs.scenes import SceneError
 
 MAX_TRIES = 64
@@ -61,17 +63,27 @@ def geodesic_range(planner: GridPlanner, conf: EpisodeConfig, scene_id: str = ""
     return max(conf.min_geodesic, 0.7 * diam), diam
 
 
+def end_cells(planner: GridPlanner, clearance: float) -> np.ndarray:
+    """Free cells at least `clearance` m (planner's convention) from blocked cells [H, W] bool;
+    the planner's free cells when there is none."""
+    cells = inflate(planner.raw > 0, clearance / planner.resolution) & planner.free
+    return cells if cells.any() else planner.free.copy()
+
+
 def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[float, float],
-                   conf: EpisodeConfig, scene_id: str = "") -> Episode:
-    """Random start, a goal whose A* geodesic length lies in span, facing along the path."""
+                   conf: EpisodeConfig, scene_id: str = "", ends: Optional[np.ndarray] = None
+                   ) -> Episode:
+    """Random start, a goal whose A* geodesic length lies in span, facing along the path;
+    both on `ends` cells [H, W] bool when given (see `end_cells`)."""
     lo, hi = span
+    ends = planner.free if ends is None else ends
     for _ in range(MAX_TRIES):
-        start = planner.sample_free(rng)
+        start = _sample_cell(planner, ends, rng)
         d = planner.distance_field(start)  # [H, W] m
-        if not np.any(np.isfinite(d) & (d >= lo)):  # a start in the middle of a narrow map:
-            start = _farthest(planner, d, rng)  # restart from the far end (a double sweep)
+        if not np.any(np.isfinite(d) & (d >= lo) & ends):  # a start in the middle of a narrow
+            start = _farthest(planner, d, ends, rng)  # map: restart from its far end (double sweep)
             d = planner.distance_field(start)
-        rows, cols = np.nonzero((d >= lo) & (d <= 1.1 * hi))  # the smoothed path is shorter
+        rows, cols = np.nonzero((d >= lo) & (d <= 1.1 * hi) & ends)  # the smoothed path is shorter
         if len(rows) == 0:
             continue
         i = int(rng.integers(len(rows)))
@@ -85,9 +97,24 @@ def sample_episode(planner: GridPlanner, rng: np.random.Generator, span: tuple[f
                      f"{hi:.1f} m A* path in {MAX_TRIES} tries")
 
 
-def _farthest(planner: GridPlanner, d: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
-    """A random point in the cell farthest (geodesic distance field d [H, W]) from a start."""
-    far = np.unravel_index(np.argmax(np.where(np.isfinite(d), d, -1.0)), d.shape)
+def _sample_cell(planner: GridPlanner, cells: np.ndarray, rng: np.random.Generator) -> tuple[float, float]:
+    """A uniformly random point inside a random cell of the mask cells [H, W] bool."""
+    rows, cols = np.nonzero(cells)
+    if len(rows) == 0:
+        raise ValueError("walkable grid has no free cell (after clearance inflation)")
+    i = int(rng.integers(len(rows)))
+    p = planner.to_world(rows[i], cols[i]) + rng.uniform(-0.4, 0.4, size=2) * planner.resolution
+    return float(p[0]), float(p[1])
+
+
+def _farthest(planner: GridPlanner, d: np.ndarray, ends: np.ndarray, rng: np.random.Generator
+              ) -> tuple[float, float]:
+    """A random point in the end cell (ends [H, W] bool; any cell when none is reachable)
+    farthest (geodesic distance field d [H, W]) from a start."""
+    reach = np.isfinite(d)
+    if (reach & ends).any():
+        reach &= ends
+    far = np.unravel_index(np.argmax(np.where(reach, d, -1.0)), d.shape)
     p = planner.to_world(*far) + rng.uniform(-0.4, 0.4, size=2) * planner.resolution
     return float(p[0]), float(p[1])
 

@@ -139,7 +139,8 @@ class NavEnv(gym.Env):
         """An episode whose start pose does not touch the collision mesh (places the robot)."""
         c, phys = self.config, self.world.physics
         for _ in range(START_TRIES):
-            ep = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id)
+            ep = sample_episode(self.world.planner, rng, self.world.span, c.episode, scene_id,
+                                self.world.ends)
             phys.place(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
             if phys.depth <= CONTACT_EPS:
                 return ep

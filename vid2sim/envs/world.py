@@ -6,8 +6,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional, Union
 
+import numpy as np
+
 from vid2sim.envs.config import EnvConfig
-from vid2sim.envs.episodes import geodesic_range
+from vid2sim.envs.episodes import end_cells, geodesic_range
 from vid2sim.envs.physics import PhysicsWorld
 from vid2sim.envs.planning import GridPlanner
 from vid2sim.envs.rendering import FastSplatView, MeshView, SplatView
@@ -23,6 +25,7 @@ class SceneWorld:
     physics: PhysicsWorld
     view: Union[SplatView, FastSplatView, MeshView]
     span: tuple[float, float]  # geodesic start-goal range (m)
+    ends: np.ndarray  # [H, W] bool: cells starts and goals are sampled on (episodes.end_cells)
 
     def close(self) -> None:
         self.physics.close()
@@ -36,6 +39,7 @@ def build_world(registry: Registry, scene_id: str, conf: EnvConfig,
     clearance = max(0.0, conf.episode.clearance - assets.walkable_inflation)
     planner = GridPlanner(assets.walkable, clearance=clearance)
     span = geodesic_range(planner, conf.episode, scene_id)
+    ends = end_cells(planner, max(0.0, conf.episode.end_clearance - assets.walkable_inflation))
     if conf.variant == "mesh-rgb":
         view: Union[SplatView, FastSplatView, MeshView] = MeshView(
             read_visual_mesh(assets.visual_mesh_path, scene_id), conf.camera)
@@ -44,4 +48,4 @@ def build_world(registry: Registry, scene_id: str, conf: EnvConfig,
     else:
         view = SplatView(assets.splats, conf.camera, lod=conf.lod)
     physics = PhysicsWorld(assets.collision, conf.robot)
-    return SceneWorld(assets, walkable, planner, physics, view, span)
+    return SceneWorld(assets, walkable, planner, physics, view, span, ends)
