@@ -259,13 +259,16 @@ def test_expert_steers_off_arcs_that_leave_the_map(registry):
 
 
 def test_expert_tries_other_steering_when_blocked(registry):
-    """An act at an unchanged pose (the last action was blocked) steers differently."""
+    """After a step that left the pose unchanged (as a blocked move does) the expert steers the
+    other way; asked twice without a step it answers the same (SB3's env_method may ask twice)."""
     env = make(registry, training=False)
     env.reset(seed=0)
     expert = PurePursuitExpert()
     expert.reset(env)
     first = expert.act(env)
-    second = expert.act(env)  # no step: the pose did not change
+    np.testing.assert_array_equal(expert.act(env), first)  # no step in between: same action
+    env.step(np.array([-1.0, first[1]], np.float32))  # speed clamped to 0: the pose stays
+    second = expert.act(env)
     assert second[1] != first[1] and abs(second[1]) == 1.0 and np.sign(second[1]) != np.sign(first[1])
     env.step(second)
     assert expert.act(env)[1] == pytest.approx(first[1], abs=0.5)  # moving again: pursuit

@@ -32,7 +32,7 @@ class PurePursuitExpert:
         self.config = config
         self.path: Optional[np.ndarray] = None  # [K, 2]
         self.index = 0
-        self.last: Optional[tuple] = None  # (pose, action) of the previous act
+        self.last: Optional[tuple] = None  # (env step count, pose, action) of the previous act
         self.stuck = 0
 
     def reset(self, env) -> None:
@@ -44,6 +44,8 @@ class PurePursuitExpert:
     def act(self, env) -> np.ndarray:
         """Action [2] (speed, steering) in [-1, 1] for the current robot pose."""
         u = env.unwrapped
+        if self.last is not None and self.last[0] == u.steps:  # asked again before any step
+            return self.last[2].copy()
         x, y, yaw = u.robot_pose()
         target = self._target(np.array([x, y]))
         dx, dy = target[0] - x, target[1] - y
@@ -56,13 +58,15 @@ class PurePursuitExpert:
         speed = 1.0 - (1.0 - c.min_speed) * slow
         steer_n = _safe_steer(u, float(np.clip(steer / robot.max_steer, -1.0, 1.0)), c)
         pose = (x, y, yaw)
-        if self.last is not None and self.last[0] == pose:  # blocked by the mesh: try other steering
+        if self.last is not None and self.last[1] == pose:  # a step left the pose: blocked, steer away
             self.stuck += 1
-            steer_n = (-1.0 if self.last[1] >= 0 else 1.0) if self.stuck % 2 else float(-self.last[1])
+            prev = float(self.last[2][1])
+            steer_n = (-1.0 if prev >= 0 else 1.0) if self.stuck % 2 else -prev
         else:
             self.stuck = 0
-        self.last = (pose, steer_n)
-        return np.array([speed, steer_n], np.float32)
+        action = np.array([speed, steer_n], np.float32)
+        self.last = (u.steps, pose, action)
+        return action.copy()
 
     def _target(self, p: np.ndarray) -> np.ndarray:
         """Look-ahead point: first path point >= lookahead past the closest one (monotone)."""
