@@ -34,7 +34,7 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import hardware_line  # noqa: E402  (benchmarks/common.py)
 
-from vid2sim.factory.evaluation.corridor import corridor_check  # noqa: E402
+from vid2sim.factory.evaluation.corridor import corridor_check, path_miss_causes  # noqa: E402
 from vid2sim.factory.geometry.carving import CarveConfig  # noqa: E402
 from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou  # noqa: E402
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
@@ -112,12 +112,19 @@ def run(args) -> dict:
                 chamfer_m=round((acc + comp) / 2, 4),
                 walkable_iou=round(grid_iou(wm_crop, gt_crop), 4), iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
                 walkable_area_m2=round(wm.area_m2(), 2), variant=args.variant,
-                **corridor_check(wm, collision, T[:, :3, 3]).to_dict())
+                **corridor_check(wm, collision, T[:, :3, 3]).to_dict(), **miss_row(layer, T[:, :3, 3], wconf))
+
+
+def miss_row(layer, path: np.ndarray, wconf: WalkableConfig) -> dict:
+    """Why walked samples are off the map (corridor.path_miss_causes), prefixed miss_."""
+    out = path_miss_causes(layer.walkable, layer.evidence, path, wconf.robot_radius_m)
+    return {f"miss_{k}": round(v, 4) for k, v in out.items()}
 
 
 NO_CULL = dict(cov_cull_alpha=None)
 # before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
-OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08, fill_to_obstacles=False)
+OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08, fill_to_obstacles=False,
+           map_resolution_m=0.1)
 LOCAL_STEPS = dict(kerb=None, max_step_m=0.08, fill_to_obstacles=False)  # session 18's default
 NO_EDGE = dict(edge_rel=0.0)  # rows measured before the depth-edge filter became the default
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
@@ -142,6 +149,9 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "default + depth-edge filter 0.2": (dict(carve=CarveConfig(), edge_rel=0.2), {}, {}),
     "default without the depth-edge filter (session 19 before the switch)": (dict(carve=CarveConfig(), edge_rel=0.0), {}, {}),
     "default without growth up to obstacles and kerbs": (dict(carve=CarveConfig(), **NO_EDGE), dict(fill_to_obstacles=False), {}),
+    # session 20: the clearance test on 0.05 m map cells (default) vs the ground model's 0.1 m
+    "default with 0.1 m map cells (session 19's default)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.1), {}),
+    "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
@@ -191,7 +201,8 @@ def run_from_splats(args) -> list[dict]:
                    mesh_s=round(t_mesh, 2), carve_s=res.summary.get("carve_seconds", 0.0),
                    walkable_s=round(t_walk, 2), step_m=round(layer.step_m, 3),
                    collision_faces=len(layer.faces),
-                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, collision, src).to_dict())
+                   walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, collision, src).to_dict(),
+                   **miss_row(layer, src, wconf))
         if synth is not None:
             err = scene_errors(clip, synth, collision, wm, wconf.robot_radius_m, args.unseen_m)
             row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
@@ -210,6 +221,9 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("path_within_robot_radius", "path within robot radius"),
               ("iou_missed_left_m2", "IoU missed left m2"), ("iou_missed_right_m2", "missed right m2"),
               ("iou_extra_left_m2", "extra left m2"), ("iou_extra_right_m2", "extra right m2"),
+              ("miss_obstacle_within_radius", "path missed: surface within radius"),
+              ("miss_obstacle_cell", "cell discretisation"), ("miss_kerb", "kerb"),
+              ("miss_unseen", "unseen"), ("miss_component", "other component"),
               ("step_m", "step m"), ("mesh_s", "meshing s"), ("carve_s", "of which carving s"),
               ("walkable_s", "physical layer s")]
 

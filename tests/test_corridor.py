@@ -90,3 +90,34 @@ def test_pipeline_gate_writes_the_report_and_names_the_reason(tmp_path):
         check_corridor(CorridorConfig(gate_max_area_m2=0.05), walk_dir, PATH)
     assert e.value.reason == "corridor_obstructed"
     assert '"passed": false' in (walk_dir / "corridor.json").read_text()
+
+
+def test_miss_causes_name_the_first_reason_per_sample_and_sum_to_the_miss():
+    from vid2sim.factory.evaluation.corridor import MISS_CAUSES, path_miss_causes
+    from vid2sim.factory.geometry.walkable import MapEvidence
+
+    wm = open_grid()  # x -1..5 at 0.1 m; the path runs along y = 0 from x 0 to 4
+    shape = wm.grid.shape
+    seen, by_obs, by_kerb = np.ones(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool)
+    seen[:, 11:16] = False  # x [0.1, 0.6): unseen
+    by_obs[:, 21:26] = True  # x [1.1, 1.6): blocked by the surface point at (1.3, -0.25)
+    by_obs[:, 31:36] = True  # x [2.1, 2.6): blocked, but its point is 0.35 m from the path
+    by_kerb[:, 41:46] = True  # x [3.1, 3.6): beyond-kerb inflation
+    wm.grid[:] = 0
+    wm.grid[:, 10:50] = 1
+    wm.grid[~seen | by_obs | by_kerb] = 0
+    wm.grid[:, 47:49] = 0  # x [3.7, 3.9) free in the evidence, but cut off (component)
+    pts = np.array([[1.3, -0.25], [2.3, -0.35]])
+    out = path_miss_causes(wm, MapEvidence(seen, by_obs, by_kerb, pts), PATH, robot_radius_m=0.3)
+    rep = corridor_check(wm, None, PATH)
+    assert sum(out[k] for k in MISS_CAUSES) == pytest.approx(1 - rep.walkable_fraction)
+    n = len(walked_path(PATH, 0.05))
+    assert out["unseen"] == pytest.approx(10 / n) and out["kerb"] == pytest.approx(10 / n)
+    assert out["component"] == pytest.approx(4 / n, abs=1.5 / n)
+    # x [1.1, 1.6): within 0.3 m of (1.3, -0.25) is x in [1.134, 1.466] (7 samples), the rest
+    # of that stretch and all of x [2.1, 2.6) clear every point: discretisation
+    assert out["obstacle_within_radius"] == pytest.approx(7 / n, abs=1.5 / n)
+    assert out["obstacle_cell"] == pytest.approx(13 / n, abs=1.5 / n)
+    assert out["off_grid"] == 0.0 and out["obstacle_clearance_min_m"] == pytest.approx(0.25)
+    off = path_miss_causes(wm, MapEvidence(seen, by_obs, by_kerb, pts), PATH + [0, 5.0, 0], 0.3)
+    assert off["off_grid"] == 1.0

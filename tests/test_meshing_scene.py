@@ -162,7 +162,7 @@ def test_walkable_map_against_analytic_gt(scene_data):
     _, _, path, res = scene_data
     conf = WalkableConfig()
     wm = walkable_map(res.ground_points, res.collision, path, conf)
-    assert wm.resolution == pytest.approx(0.1)
+    assert wm.resolution == pytest.approx(conf.map_resolution_m)
     assert wm.lookup(path[:, 0], path[:, 1]).all()  # camera path on walkable ground
     # nothing walkable inside the obstacle footprints inflated by most of the robot radius
     n = 200

@@ -157,3 +157,38 @@ def test_ground_grows_over_enclosed_unseen_holes_but_not_past_obstacles():
     assert grown.lookup(np.array([1.0]), np.array([1.0])).all()
     assert not plain.lookup(np.array([1.0]), np.array([1.0])).any()
     assert not grown.lookup(np.array([-2.0]), np.array([1.2])).any()  # the obstacle still blocks
+
+
+@pytest.mark.parametrize("map_res", [0.1, 0.05])
+def test_map_cells_finer_than_the_ground_model_keep_a_path_that_clears_a_wall(map_res):
+    """A walk 0.32 m from a wall face clears a 0.3 m robot; on 0.1 m cells its cell's centre
+    (0.29 m from the face) does not, on 0.05 m cells it does. Either way every walkable cell's
+    centre clears the face by more than the radius."""
+    from vid2sim.factory.evaluation.corridor import path_miss_causes
+    from vid2sim.factory.geometry.walkable import physical_layer
+
+    path = PATH + np.array([0.0, 0.08, 0.0])  # y = 0.08: 0.1 m cell centre y 0.05
+    wall = box(0.0, -0.24 - 0.05, 2.0, 0.1, 1.0)  # face at y = -0.24, x in [-1, 1]
+    conf = WalkableConfig(map_resolution_m=map_res)
+    layer = physical_layer(plane_points(-4, 4, -2, 2), wall, path, conf)
+    wm = layer.walkable
+    assert wm.resolution == pytest.approx(map_res)
+    rows, cols = np.nonzero(wm.grid)
+    x, y = wm.cell_center(rows, cols)
+    beside = (np.abs(x) < 0.95) & (y > -0.24)  # the path's side of the wall
+    assert beside.any() and (y[beside] + 0.24).min() > 0.3
+    on_wall = np.abs(path[:, 0]) < 0.9
+    miss = path_miss_causes(wm, layer.evidence, path, conf.robot_radius_m)
+    assert miss["obstacle_within_radius"] == 0.0
+    assert miss["obstacle_clearance_min_m"] == pytest.approx(0.32, abs=0.01)
+    if map_res == 0.1:
+        assert not wm.lookup(path[on_wall, 0], path[on_wall, 1]).any()
+        assert miss["obstacle_cell"] > 0.2
+    else:
+        assert wm.lookup(path[:, 0], path[:, 1]).all()
+        assert miss["obstacle_cell"] == 0.0
+
+
+def test_map_resolution_must_split_the_ground_cells_evenly():
+    with pytest.raises(ValueError, match="map_resolution_m"):
+        walkable_map(plane_points(-4, 4, -2, 2), None, PATH, WalkableConfig(map_resolution_m=0.03))

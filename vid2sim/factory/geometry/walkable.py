@@ -32,7 +32,9 @@ Steps:
    optionally, local ground steps (smoothed height range > max_step_m within step_window_m),
    inflated by the robot radius (0.3 m,
    a sidewalk delivery robot about 0.6 m wide): a cell is blocked when its centre lies within
-   the radius of a surface sample (exact distance) or of a kerb-step cell's centre.
+   the radius of a surface sample (exact distance) or of a kerb-step cell's centre. Steps 1-4
+   model the ground on `resolution_m` cells; this clearance test and the map run on the finer
+   `map_resolution_m` cells (each ground cell split k x k).
 5. keep the 4-connected component(s) containing the camera path (each camera position
    snapped to the nearest walkable cell within `snap_m`).
 """
@@ -48,6 +50,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
+from vid2sim.factory.evaluation.corridor import path_miss_causes
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
 from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
@@ -57,7 +60,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 4  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 5  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
@@ -141,6 +144,12 @@ class WalkableConfig:
     # kerb drops found on the ground height profile across the walk, aggregated along it
     # (geometry/kerbs.py); the cells beyond a drop block like step cells. None disables
     kerb: Optional[KerbConfig] = field(default_factory=KerbConfig)
+    # cell size of the robot-centre map the envs get (resolution_m divided by an integer): the
+    # ground model (evidence, heights, noise, kerbs) stays at resolution_m, the clearance test
+    # (cell centre within robot_radius_m of a surface sample) runs on these finer cells. At
+    # 0.1 m a cell centre lies up to 0.07 m from a point in the cell, so a walked position
+    # 0.345 m from a surface fell in a blocked cell (demo street path 97.1 -> 98.9 % at 0.05)
+    map_resolution_m: float = 0.05
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -386,6 +395,16 @@ def path_component(free: np.ndarray, path_rc: np.ndarray, snap_cells: float) -> 
 
 
 @dataclass
+class MapEvidence:
+    """Why each cell of a walkable map is (not) walkable, on the map's grid [H, W]."""
+
+    seen: np.ndarray  # [H, W] bool ground (seen, walked or grown)
+    blocked_obstacle: np.ndarray  # [H, W] bool centre within the robot radius of a sample
+    blocked_kerb: np.ndarray  # [H, W] bool within the robot radius of a kerb / step cell
+    obstacle_xy: np.ndarray  # [P, 2] the collision-surface samples that block
+
+
+@dataclass
 class PhysicalLayer:
     """What the envs get: the walkable map and the collision mesh that agrees with it."""
 
@@ -394,6 +413,21 @@ class PhysicalLayer:
     faces: np.ndarray  # [F, 3]
     step_m: float  # the step height used (obstacle_min_z_m raised to the ground noise)
     dropped_faces: int
+    evidence: Optional[MapEvidence] = None
+
+
+def map_factor(conf: WalkableConfig) -> int:
+    """Map cells per ground-model cell along each axis (resolution_m / map_resolution_m)."""
+    k = conf.resolution_m / conf.map_resolution_m if conf.map_resolution_m > 0 else 1.0
+    if k < 1 - 1e-6 or abs(k - round(k)) > 1e-6:
+        raise ValueError(f"map_resolution_m {conf.map_resolution_m} must divide resolution_m "
+                         f"{conf.resolution_m} by an integer")
+    return int(round(k))
+
+
+def upsample(mask: np.ndarray, k: int) -> np.ndarray:
+    """Each cell of mask [H, W] as k x k cells: [H * k, W * k]."""
+    return mask if k == 1 else np.repeat(np.repeat(mask, k, axis=0), k, axis=1)
 
 
 def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
@@ -424,23 +458,25 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
     min_z = conf.body_bottom_m if conf.trim_collision else step
     steps = step_cells(gp, origin, shape, conf, walked) | beyond_kerb(gp, path, origin, shape, conf, walked)
-    if conf.exact_inflation:
-        pts = obstacle_points((v, f), gz, origin, conf, min_z)
-        blocked = near_points(pts, origin, shape, res, conf.robot_radius_m) | \
-            inflate(steps, conf.robot_radius_m, res)
-    else:
-        blocked = inflate(obstacle_cells((v, f), gz, origin, conf, min_z) | steps,
-                          conf.robot_radius_m, res)
+    pts = obstacle_points((v, f), gz, origin, conf, min_z)  # [P, 2]
     if conf.fill_holes and conf.fill_to_obstacles:
-        occ = steps | (_rasterise(pts, origin, shape, res) if conf.exact_inflation else
-                       obstacle_cells((v, f), gz, origin, conf, min_z))
+        occ = steps | _rasterise(pts, origin, shape, res)
         seen |= ndimage.binary_fill_holes(seen | occ) & ~occ
-    free = seen & ~blocked
-    path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / res),
-                        np.floor((path[:, 0] - origin[0]) / res)], axis=1).astype(np.int64)
-    grid = path_component(free, path_rc, conf.snap_m / res)
-    return PhysicalLayer(WalkableGrid(grid.astype(np.uint8), origin, res), v, f, float(step),
-                         n_faces - len(f))
+    k = map_factor(conf)
+    mres = res / k  # the map's cells: the ground model's split k x k
+    seen, steps = upsample(seen, k), upsample(steps, k)
+    if conf.exact_inflation:
+        by_obstacle = near_points(pts, origin, seen.shape, mres, conf.robot_radius_m)
+    else:
+        by_obstacle = inflate(_rasterise(pts, origin, seen.shape, mres), conf.robot_radius_m, mres)
+    by_kerb = inflate(steps, conf.robot_radius_m, mres)
+    free = seen & ~by_obstacle & ~by_kerb
+    path_rc = np.stack([np.floor((path[:, 1] - origin[1]) / mres),
+                        np.floor((path[:, 0] - origin[0]) / mres)], axis=1).astype(np.int64)
+    grid = path_component(free, path_rc, conf.snap_m / mres)
+    evidence = MapEvidence(seen, by_obstacle, by_kerb, pts)
+    return PhysicalLayer(WalkableGrid(grid.astype(np.uint8), origin, mres), v, f, float(step),
+                         n_faces - len(f), evidence)
 
 
 def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
@@ -472,7 +508,9 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     trimesh.Trimesh(layer.vertices, layer.faces, process=False).export(out_dir / OUTPUTS.collision)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
                    walkable_area_m2=round(wm.area_m2(), 3), step_m=round(layer.step_m, 3),
-                   collision_faces=int(len(layer.faces)), dropped_faces=layer.dropped_faces)
+                   collision_faces=int(len(layer.faces)), dropped_faces=layer.dropped_faces,
+                   path_miss={k: round(x, 4) for k, x in path_miss_causes(
+                       wm, layer.evidence, camera_path, conf.robot_radius_m).items()})
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, summary, t.seconds)
