@@ -204,7 +204,8 @@ def run_from_splats(args) -> list[dict]:
                    walkable_area_m2=round(wm.area_m2(), 2), **corridor_check(wm, collision, src).to_dict(),
                    **miss_row(layer, src, wconf))
         if synth is not None:
-            err = scene_errors(clip, synth, collision, wm, wconf.robot_radius_m, args.unseen_m)
+            err = scene_errors(clip, synth, collision, wm, wconf.robot_radius_m, args.unseen_m,
+                               evidence=layer.evidence)
             row.update({k: round(v, 4) if isinstance(v, float) else v for k, v in err.items()})
         rows.append(row)
         print(json.dumps(row), flush=True)
@@ -221,6 +222,9 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("path_within_robot_radius", "path within robot radius"),
               ("iou_missed_left_m2", "IoU missed left m2"), ("iou_missed_right_m2", "missed right m2"),
               ("iou_extra_left_m2", "extra left m2"), ("iou_extra_right_m2", "extra right m2"),
+              ("iou_missed_obstacle_m2", "IoU missed by: obstacle clearance m2"),
+              ("iou_missed_kerb_m2", "kerb m2"), ("iou_missed_unseen_m2", "unseen m2"),
+              ("iou_missed_component_m2", "other component m2"),
               ("miss_obstacle_within_radius", "path missed: surface within radius"),
               ("miss_obstacle_cell", "cell discretisation"), ("miss_kerb", "kerb"),
               ("miss_unseen", "unseen"), ("miss_component", "other component"),

@@ -57,3 +57,24 @@ def test_iou_breakdown_puts_missed_and_extra_area_on_their_side_of_the_path():
     assert b["missed_left_m2"] == pytest.approx(4.0 * 0.4, abs=0.1)
     assert b["missed_right_m2"] == 0.0 and b["extra_left_m2"] == 0.0
     assert b["extra_right_m2"] == pytest.approx(4.0 * 0.2, abs=0.1)
+
+
+def test_iou_breakdown_names_the_cause_of_the_missed_area():
+    from vid2sim.factory.geometry.walkable import MapEvidence
+
+    gt = gt_map(box_at(5.0), 0.3)
+    ours = WalkableGrid(gt.grid.copy(), gt.origin, gt.resolution)
+    shape = gt.grid.shape
+    y = gt.origin[1] + (np.arange(shape[0]) + 0.5) * gt.resolution
+    seen, by_obs, by_kerb = np.ones(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool)
+    by_obs[(y > 1.2) & (y < 1.6)] = True  # 0.4 m strip blocked by an obstacle's clearance
+    seen[(y > -1.0) & (y < -0.9)] = False  # 0.1 m strip never seen
+    ours.grid[~seen | by_obs] = 0
+    ev = MapEvidence(seen, by_obs, by_kerb, np.zeros((0, 2)))
+    b = iou_breakdown(ours, gt, PATH, -2.0, 2.0, evidence=ev)
+    assert b["missed_obstacle_m2"] == pytest.approx(4.0 * 0.4, abs=0.1)
+    assert b["missed_unseen_m2"] == pytest.approx(4.0 * 0.1, abs=0.1)
+    assert b["missed_kerb_m2"] == 0.0 and b["missed_component_m2"] == 0.0
+    assert b["missed_obstacle_m2"] + b["missed_unseen_m2"] == pytest.approx(
+        b["missed_left_m2"] + b["missed_right_m2"])
+    assert "missed_obstacle_m2" not in iou_breakdown(ours, gt, PATH, -2.0, 2.0)

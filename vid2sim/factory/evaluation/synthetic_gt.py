@@ -51,12 +51,14 @@ def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.nda
 
 
 def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableGrid,
-                 robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000) -> dict:
+                 robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000,
+                 evidence=None) -> dict:
     """Pose ATE, collision-mesh accuracy (reconstruction -> GT obstacles, m), ground left in the
     collision mesh, and walkable IoU over the walked x range (the first `unseen_m` metres, which a
     camera 1.5 m up never sees, excluded) against the robot-centre GT map; plus the ceiling of
     the corridor figures on the GT map, the walked path's clearance to our collision surface and
-    the IoU's missed / extra area by side of the path (`walkable_ceiling`)."""
+    the IoU's missed / extra area by side of the path, and with the map's `evidence`
+    (geometry.walkable.MapEvidence) the missed area by cause (`walkable_ceiling`)."""
     gt_clip = PosedClip.load(synthetic_dir)
     by_t = {round(f.timestamp, 3): f.cam_to_world[:3, 3] for f in gt_clip.frames}
     frames = [f for f in estimate.frames if round(f.timestamp, 3) in by_t]
@@ -79,7 +81,7 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     diag = {**ceiling(gt_map, scene.without_ground(), gt_path, robot_radius_m),
             "path_clearance_min_m": float(ours_clear.min()),
             "path_within_robot_radius": float(np.mean(ours_clear < robot_radius_m)),
-            **{f"iou_{k}": v for k, v in iou_breakdown(shifted, gt_map, path, x0, x1).items()}}
+            **{f"iou_{k}": v for k, v in iou_breakdown(shifted, gt_map, path, x0, x1, evidence=evidence).items()}}
     return {"matched_frames": len(frames), "ate_m": pose["rmse"], "ate_pct_of_path": pose["rmse_pct_of_path"],
             "metric_scale_error_pct": 100 * abs(s - 1.0),
             "collision_accuracy_m": float(dist.mean()),

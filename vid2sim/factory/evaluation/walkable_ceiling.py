@@ -8,10 +8,14 @@ the ground). A clearance below the robot radius means no faithful map can hold t
 path for that robot; above it, the figure a reconstruction misses is its geometry's fault.
 
 Breakdown: the IoU's missed (GT walkable, ours not) and extra (ours walkable, GT not) areas
-split by the side of the walked path they lie on, on a common grid over an x range.
+split by the side of the walked path they lie on, on a common grid over an x range; with the
+map's evidence, the missed area also by cause (unseen ground, obstacle or kerb clearance, cut
+off from the path's component), as `corridor.path_miss_causes` does for the walked path.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -22,6 +26,9 @@ from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.formats.walkable import WalkableGrid
+
+if TYPE_CHECKING:
+    from vid2sim.factory.geometry.walkable import MapEvidence
 
 
 def path_clearance(mesh: MeshLike, camera_path: np.ndarray, band_bottom_m: float = 0.15,
@@ -60,9 +67,10 @@ def ceiling(gt_map: WalkableGrid, gt_obstacles: MeshLike, gt_path: np.ndarray,
 
 
 def iou_breakdown(ours: WalkableGrid, gt: WalkableGrid, camera_path: np.ndarray, x0: float,
-                  x1: float, res: float = 0.05) -> dict:
+                  x1: float, res: float = 0.05, evidence: Optional["MapEvidence"] = None) -> dict:
     """Missed and extra walkable area (m^2) between world x0 and x1, split into the left
-    (+) and right (-) side of the walked path (camera_path [T, 3]), on a res grid."""
+    (+) and right (-) side of the walked path (camera_path [T, 3]), on a res grid; with
+    `evidence` (on ours's grid) the missed area also by its first cause (module docstring)."""
     lo_y = min(ours.origin[1], gt.origin[1])
     hi_y = max(ours.extent_max()[1], gt.extent_max()[1])
     X, Y = np.meshgrid(np.arange(x0, x1, res) + res / 2, np.arange(lo_y, hi_y, res) + res / 2)
@@ -76,4 +84,24 @@ def iou_breakdown(ours: WalkableGrid, gt: WalkableGrid, camera_path: np.ndarray,
         out[f"{name}_right_m2"] = float(np.count_nonzero(m & ~left) * cell)
     out["gt_area_m2"] = float(np.count_nonzero(b) * cell)
     out["ours_area_m2"] = float(np.count_nonzero(a) * cell)
+    if evidence is not None:
+        out.update(missed_causes(ours, evidence, X[b & ~a], Y[b & ~a], cell))
+    return out
+
+
+def missed_causes(ours: WalkableGrid, evidence: "MapEvidence", x: np.ndarray, y: np.ndarray,
+                  cell_m2: float) -> dict:
+    """Area (m^2) of the missed points x, y [N] by first cause: outside our grid, unseen,
+    obstacle clearance, kerb clearance, else another component."""
+    H, W = ours.shape
+    r, c = ours.world_to_cell(x, y)
+    inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+    r, c = np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)
+    left = np.ones(len(x), bool)
+    out = {}
+    for name, hit in (("off_grid", ~inside), ("unseen", ~evidence.seen[r, c]),
+                      ("obstacle", evidence.blocked_obstacle[r, c]), ("kerb", evidence.blocked_kerb[r, c]),
+                      ("component", np.ones(len(x), bool))):
+        out[f"missed_{name}_m2"] = float(np.count_nonzero(left & hit) * cell_m2)
+        left &= ~hit
     return out
