@@ -34,7 +34,8 @@ import trimesh
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import hardware_line  # noqa: E402  (benchmarks/common.py)
 
-from vid2sim.factory.evaluation.corridor import corridor_check, path_miss_causes  # noqa: E402
+from vid2sim.factory.evaluation.corridor import corridor_check  # noqa: E402
+from vid2sim.factory.geometry.map_evidence import path_miss_causes  # noqa: E402
 from vid2sim.factory.geometry.carving import CarveConfig  # noqa: E402
 from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou  # noqa: E402
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
@@ -116,7 +117,7 @@ def run(args) -> dict:
 
 
 def miss_row(layer, path: np.ndarray, wconf: WalkableConfig) -> dict:
-    """Why walked samples are off the map (corridor.path_miss_causes), prefixed miss_."""
+    """Why walked samples are off the map (geometry.map_evidence.path_miss_causes), prefixed miss_."""
     out = path_miss_causes(layer.walkable, layer.evidence, path, wconf.robot_radius_m)
     return {f"miss_{k}": round(v, 4) for k, v in out.items()}
 

@@ -93,8 +93,7 @@ def test_pipeline_gate_writes_the_report_and_names_the_reason(tmp_path):
 
 
 def test_miss_causes_name_the_first_reason_per_sample_and_sum_to_the_miss():
-    from vid2sim.factory.evaluation.corridor import MISS_CAUSES, path_miss_causes
-    from vid2sim.factory.geometry.walkable import MapEvidence
+    from vid2sim.factory.geometry.map_evidence import MISS_CAUSES, MapEvidence, path_miss_causes
 
     wm = open_grid()  # x -1..5 at 0.1 m; the path runs along y = 0 from x 0 to 4
     shape = wm.grid.shape

@@ -60,7 +60,7 @@ def test_iou_breakdown_puts_missed_and_extra_area_on_their_side_of_the_path():
 
 
 def test_iou_breakdown_names_the_cause_of_the_missed_area():
-    from vid2sim.factory.geometry.walkable import MapEvidence
+    from vid2sim.factory.geometry.map_evidence import MapEvidence
 
     gt = gt_map(box_at(5.0), 0.3)
     ours = WalkableGrid(gt.grid.copy(), gt.origin, gt.resolution)

@@ -164,7 +164,7 @@ def test_map_cells_finer_than_the_ground_model_keep_a_path_that_clears_a_wall(ma
     """A walk 0.32 m from a wall face clears a 0.3 m robot; on 0.1 m cells its cell's centre
     (0.29 m from the face) does not, on 0.05 m cells it does. Either way every walkable cell's
     centre clears the face by more than the radius."""
-    from vid2sim.factory.evaluation.corridor import path_miss_causes
+    from vid2sim.factory.geometry.map_evidence import path_miss_causes
     from vid2sim.factory.geometry.walkable import physical_layer
 
     path = PATH + np.array([0.0, 0.08, 0.0])  # y = 0.08: 0.1 m cell centre y 0.05

@@ -7,14 +7,15 @@ the camera. Three figures, none needing ground truth:
   walkable_fraction   fraction of the walked path (sampled every `step_m`) on walkable cells
   path_components     number of 4-connected walkable components the walked path touches
   corridor_area_m2    collision-mesh surface area inside the corridor (phantom obstacles)
-`gate_reasons` turns them into named quality-gate failures. `path_miss_causes` says why each
-walked sample off the map is off it (from the map's evidence, also ground-truth free).
+`gate_reasons` turns them into named quality-gate failures. Why each walked sample off the map is
+off it (from the map's evidence, also ground-truth free) is `geometry.map_evidence.path_miss_causes`,
+which the walkable stage stores in its report.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import numpy as np
 from scipy import ndimage
@@ -24,9 +25,6 @@ from vid2sim.factory.evaluation.geometry_metrics import sample_surface
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.walked_path import CorridorError, walked_path  # noqa: F401  (re-exported)
 from vid2sim.formats.walkable import WalkableGrid
-
-if TYPE_CHECKING:  # geometry.walkable imports this module (its stage reports the causes)
-    from vid2sim.factory.geometry.walkable import MapEvidence
 
 
 @dataclass(frozen=True)
@@ -134,40 +132,3 @@ def gate_reasons(report: CorridorReport, conf: CorridorConfig) -> list[str]:
     if report.corridor_area_m2 > conf.gate_max_area_m2:
         reasons.append("corridor_obstructed")
     return reasons
-
-
-MISS_CAUSES = ("off_grid", "unseen", "obstacle_within_radius", "obstacle_cell", "kerb", "component")
-
-
-def path_miss_causes(wm: WalkableGrid, evidence: MapEvidence, camera_path: np.ndarray,
-                     robot_radius_m: float, step_m: float = 0.05) -> dict:
-    """Why walked samples (every step_m of camera_path [T, 3]) are not on walkable cells, as
-    fractions of all samples, the first cause that holds per sample:
-      off_grid                the sample lies outside the map
-      unseen                  its cell is not ground (never seen, walked or grown over)
-      obstacle_within_radius  collision surface lies within the robot radius of the sample
-                              itself: the reconstructed geometry blocks a robot there
-      obstacle_cell           the sample clears every surface sample by more than the radius,
-                              but its cell's centre does not (map discretisation)
-      kerb                    its cell lies within the radius of ground beyond a kerb / step
-      component               free, but not in the component the path is kept in
-    plus `obstacle_clearance_min_m`, the smallest sample-to-surface distance on the path."""
-    walked = walked_path(camera_path, step_m)  # [S, 3]
-    on = wm.lookup(walked[:, 0], walked[:, 1])  # [S]
-    H, W = wm.shape
-    r, c = wm.world_to_cell(walked[:, 0], walked[:, 1])
-    inside = (r >= 0) & (r < H) & (c >= 0) & (c < W)
-    rr, cc = np.clip(r, 0, H - 1), np.clip(c, 0, W - 1)
-    if len(evidence.obstacle_xy):
-        clear = cKDTree(evidence.obstacle_xy).query(walked[:, :2])[0]  # [S]
-    else:
-        clear = np.full(len(walked), np.inf)
-    tests = (~inside, ~evidence.seen[rr, cc], clear <= robot_radius_m,
-             evidence.blocked_obstacle[rr, cc], evidence.blocked_kerb[rr, cc], np.ones(len(walked), bool))
-    left = ~on
-    out = {}
-    for name, hit in zip(MISS_CAUSES, tests):
-        out[name] = float(np.count_nonzero(left & hit)) / len(walked)
-        left &= ~hit
-    out["obstacle_clearance_min_m"] = float(clear.min())
-    return out

@@ -58,7 +58,7 @@ def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, 
     camera 1.5 m up never sees, excluded) against the robot-centre GT map; plus the ceiling of
     the corridor figures on the GT map, the walked path's clearance to our collision surface and
     the IoU's missed / extra area by side of the path, and with the map's `evidence`
-    (geometry.walkable.MapEvidence) the missed area by cause (`walkable_ceiling`)."""
+    (geometry.map_evidence.MapEvidence) the missed area by cause (`walkable_ceiling`)."""
     gt_clip = PosedClip.load(synthetic_dir)
     by_t = {round(f.timestamp, 3): f.cam_to_world[:3, 3] for f in gt_clip.frames}
     frames = [f for f in estimate.frames if round(f.timestamp, 3) in by_t]

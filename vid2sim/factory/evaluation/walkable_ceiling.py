@@ -10,25 +10,23 @@ path for that robot; above it, the figure a reconstruction misses is its geometr
 Breakdown: the IoU's missed (GT walkable, ours not) and extra (ours walkable, GT not) areas
 split by the side of the walked path they lie on, on a common grid over an x range; with the
 map's evidence, the missed area also by cause (unseen ground, obstacle or kerb clearance, cut
-off from the path's component), as `corridor.path_miss_causes` does for the walked path.
+off from the path's component), as `geometry.map_evidence.path_miss_causes` does for the walked path.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.corridor import corridor_check
 from vid2sim.factory.geometry.kerbs import path_coordinates
+from vid2sim.factory.geometry.map_evidence import MapEvidence
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.formats.walkable import WalkableGrid
-
-if TYPE_CHECKING:
-    from vid2sim.factory.geometry.walkable import MapEvidence
 
 
 def path_clearance(mesh: MeshLike, camera_path: np.ndarray, band_bottom_m: float = 0.15,
@@ -67,7 +65,7 @@ def ceiling(gt_map: WalkableGrid, gt_obstacles: MeshLike, gt_path: np.ndarray,
 
 
 def iou_breakdown(ours: WalkableGrid, gt: WalkableGrid, camera_path: np.ndarray, x0: float,
-                  x1: float, res: float = 0.05, evidence: Optional["MapEvidence"] = None) -> dict:
+                  x1: float, res: float = 0.05, evidence: Optional[MapEvidence] = None) -> dict:
     """Missed and extra walkable area (m^2) between world x0 and x1, split into the left
     (+) and right (-) side of the walked path (camera_path [T, 3]), on a res grid; with
     `evidence` (on ours's grid) the missed area also by its first cause (module docstring)."""
@@ -89,7 +87,7 @@ def iou_breakdown(ours: WalkableGrid, gt: WalkableGrid, camera_path: np.ndarray,
     return out
 
 
-def missed_causes(ours: WalkableGrid, evidence: "MapEvidence", x: np.ndarray, y: np.ndarray,
+def missed_causes(ours: WalkableGrid, evidence: MapEvidence, x: np.ndarray, y: np.ndarray,
                   cell_m2: float) -> dict:
     """Area (m^2) of the missed points x, y [N] by first cause: outside our grid, unseen,
     obstacle clearance, kerb clearance, else another component."""

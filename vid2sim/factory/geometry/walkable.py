@@ -50,8 +50,8 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.evaluation.corridor import path_miss_causes
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
+from vid2sim.factory.geometry.map_evidence import MapEvidence, path_miss_causes
 from vid2sim.factory.geometry.walked_path import walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
@@ -392,16 +392,6 @@ def path_component(free: np.ndarray, path_rc: np.ndarray, snap_cells: float) -> 
                             "cells of walkable ground")
     keep = np.unique(labels[nr[r[near], c[near]], nc[r[near], c[near]]])
     return np.isin(labels, keep[keep > 0])
-
-
-@dataclass
-class MapEvidence:
-    """Why each cell of a walkable map is (not) walkable, on the map's grid [H, W]."""
-
-    seen: np.ndarray  # [H, W] bool ground (seen, walked or grown)
-    blocked_obstacle: np.ndarray  # [H, W] bool centre within the robot radius of a sample
-    blocked_kerb: np.ndarray  # [H, W] bool within the robot radius of a kerb / step cell
-    obstacle_xy: np.ndarray  # [P, 2] the collision-surface samples that block
 
 
 @dataclass
