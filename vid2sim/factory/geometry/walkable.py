@@ -48,6 +48,8 @@ from typing import Optional
 
 import numpy as np
 from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
@@ -150,6 +152,13 @@ class WalkableConfig:
     # 0.1 m a cell centre lies up to 0.07 m from a point in the cell, so a walked position
     # 0.345 m from a surface fell in a blocked cell (demo street path 97.1 -> 98.9 % at 0.05)
     map_resolution_m: float = 0.05
+    # floaters (`floater_faces`): a connected component of the collision mesh whose lowest
+    # vertex lies more than floater_gap_m above the local ground (nothing holds it up) and whose
+    # area is below floater_max_area_m2 is a reconstruction phantom, dropped before trimming;
+    # real small obstacles stand on the ground, real overhangs (canopies, facades, grass
+    # hanging from a bed) are large or attached to what stands. 0 area disables
+    floater_gap_m: float = 0.15
+    floater_max_area_m2: float = 0.0
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -326,8 +335,47 @@ def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarra
                                        _disc(base_m / res))
         r, c = _cells(vertices[faces[~keep]].mean(axis=1)[:, :2], origin, ground_z.shape, res)
         keep[~keep] = tall[r, c]
+    return _keep_faces(vertices, faces, keep)
+
+
+def _keep_faces(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [V', 3], faces [F', 3]) of the faces where keep [F] holds, unused vertices dropped."""
     used, inv = np.unique(faces[keep], return_inverse=True)
     return vertices[used], inv.reshape(-1, 3)
+
+
+def face_components(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Connected-component label [F] of each face of (vertices [V, 3], faces [F, 3]); faces
+    sharing a vertex position (to 1e-6 m) are connected."""
+    if len(faces) == 0:
+        return np.zeros(0, np.int64)
+    _, vid = np.unique(np.round(vertices * 1e6), axis=0, return_inverse=True)
+    f = vid.reshape(-1)[faces]  # [F, 3] merged vertex ids
+    n = int(vid.max()) + 1
+    a, b = np.concatenate([f[:, 0], f[:, 1]]), np.concatenate([f[:, 1], f[:, 2]])
+    graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1][f[:, 0]]
+
+
+def floater_faces(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarray,
+                  origin: np.ndarray, res: float, gap_m: float, max_area_m2: float) -> np.ndarray:
+    """Faces [F] bool of floaters: connected components whose lowest vertex lies more than
+    gap_m above the local ground z [H, W] (nothing holds them up) and whose area is below
+    max_area_m2 (real overhangs, canopies and facades are large; real small obstacles stand
+    on the ground)."""
+    if len(faces) == 0 or max_area_m2 <= 0:
+        return np.zeros(len(faces), bool)
+    lab = face_components(vertices, faces)  # [F]
+    h = height_above_ground(vertices, ground_z, origin, res)[faces].min(axis=1)  # [F]
+    tri = vertices[faces]  # [F, 3, 3]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    n = int(lab.max()) + 1
+    low = np.full(n, np.inf)
+    np.minimum.at(low, lab, h)
+    comp_area = np.bincount(lab, weights=area, minlength=n)
+    floater = (low > gap_m) & (comp_area < max_area_m2)  # [C]
+    return floater[lab]
 
 
 def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
@@ -444,6 +492,9 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
     v, f = mesh_arrays(collision_mesh) if collision_mesh is not None else \
         (np.zeros((0, 3)), np.zeros((0, 3), np.int64))
     n_faces = len(f)
+    if conf.floater_max_area_m2 > 0 and len(f):
+        float_f = floater_faces(v, f, gz, origin, res, conf.floater_gap_m, conf.floater_max_area_m2)
+        v, f = _keep_faces(v, f, ~float_f)
     if conf.trim_collision:
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
     min_z = conf.body_bottom_m if conf.trim_collision else step
