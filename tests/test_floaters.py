@@ -51,3 +51,12 @@ def test_blob_resting_on_the_ground_is_kept():
     lump = box(*BLOB, 0.2, 0.2, 0.3, z0=0.0)  # same size, standing: a real small obstacle
     layer = physical_layer(gp, lump, PATH, WalkableConfig(floater_max_area_m2=1.0))
     assert near(layer.vertices, BLOB)
+
+
+def test_piece_split_off_a_standing_obstacle_is_kept():
+    gp = plane_points(-4, 4, -2, 2)
+    planter = box(*BLOB, 0.2, 0.2, 0.2)  # stands on the ground up to 0.2 m ...
+    piece = box(BLOB[0], BLOB[1], 0.2, 0.2, 0.2, z0=0.23)  # ... its upper face split off 3 cm above
+    layer = physical_layer(gp, trimesh.util.concatenate([planter, piece]), PATH,
+                           WalkableConfig(floater_max_area_m2=1.0))
+    assert (layer.vertices[:, 2] > 0.4).any()  # the split-off piece is still there
