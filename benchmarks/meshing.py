@@ -153,6 +153,9 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # session 20: the clearance test on 0.05 m map cells (default) vs the ground model's 0.1 m
     "default with 0.1 m map cells (session 19's default)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.1), {}),
     "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
+    # issue 14: unsupported small components of the collision mesh (floaters) dropped
+    "default + floaters dropped (< 0.4 m^2, lowest point > max(0.1, 3 sigma) above ground)": (
+        dict(carve=CarveConfig()), dict(floater_max_area_m2=0.4), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
