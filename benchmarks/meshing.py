@@ -156,6 +156,13 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # issue 14: unsupported small components of the collision mesh (floaters) dropped
     "default + floaters dropped (< 0.4 m^2, lowest point > max(0.1, 3 sigma) above ground)": (
         dict(carve=CarveConfig()), dict(floater_max_area_m2=0.4), {}),
+    # session 21: the map's obstacle ceiling at the robot's height (box top 0.75 m) plus a margin,
+    # instead of a person's 1.8 m (a canopy the robot drives under does not block it)
+    "default, obstacles up to 1.0 m (robot top 0.75 + 0.25)": (dict(carve=CarveConfig()), dict(obstacle_max_z_m=1.0), {}),
+    "default, obstacles up to 1.2 m (robot top 0.75 + 0.45)": (dict(carve=CarveConfig()), dict(obstacle_max_z_m=1.2), {}),
+    # session 21 default: above 1.2 m only over unseen ground; this row is the map before it
+    "default without the overhead rule (every surface up to 1.8 m blocks; before session 21)": (
+        dict(carve=CarveConfig()), dict(overhead_clear_m=None), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

@@ -192,3 +192,26 @@ def test_map_cells_finer_than_the_ground_model_keep_a_path_that_clears_a_wall(ma
 def test_map_resolution_must_split_the_ground_cells_evenly():
     with pytest.raises(ValueError, match="map_resolution_m"):
         walkable_map(plane_points(-4, 4, -2, 2), None, PATH, WalkableConfig(map_resolution_m=0.03))
+
+
+def test_overhead_surface_blocks_only_over_unseen_ground():
+    """A branch 1.4-1.6 m up beside the walk (above the robot's 0.75 m box plus margin, below
+    the 1.8 m ceiling) does not block where the ground under it was seen, and still blocks
+    where it was not (the ground under it might hold anything). `overhead_clear_m=None` keeps
+    the old rule: every surface up to 1.8 m blocks."""
+    branch = box(0.0, 0.5, 1.0, 0.4, 0.2, z0=1.4)  # x [-0.5, 0.5], y [0.3, 0.7], 1.4-1.6 m up
+    seen_all = plane_points(-4, 4, -2, 2)
+    wm = walkable_map(seen_all, branch, PATH, WalkableConfig())
+    assert wm.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).all()  # the walk and under it
+    old = walkable_map(seen_all, branch, PATH, WalkableConfig(overhead_clear_m=None))
+    assert not old.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).any()
+    # no ground seen under the branch (a 1 m wide strip y 0.2-1.2 at x -1..1 left out)
+    x, y = seen_all[:, 0], seen_all[:, 1]
+    hidden = seen_all[~((np.abs(x) < 1.0) & (y > 0.2) & (y < 1.2))]
+    wm2 = walkable_map(hidden, branch, PATH,
+                       WalkableConfig(fill_holes=False, close_radius_m=0.0))
+    assert not wm2.lookup(np.array([0.0]), np.array([0.0])).any()  # within 0.3 m of the branch
+    # geometry in the robot's band blocks whatever the ground evidence says
+    post = box(0.0, 0.5, 0.1, 0.1, 1.6)
+    wm3 = walkable_map(seen_all, post, PATH, WalkableConfig())
+    assert not wm3.lookup(np.array([0.0]), np.array([0.5])).any()

@@ -29,7 +29,8 @@ Steps:
    Optionally (floater_max_area_m2 > 0) small components that do not reach down to the local
    ground (reconstruction floaters) are dropped first.
 4. obstacles: the remaining collision surface below `obstacle_max_z_m` (1.8 m: awnings and
-   canopies above do not block a ground robot) rasterised, plus the ground beyond a kerb drop
+   canopies above do not block a ground robot; above `overhead_clear_m`, 1.2 m, only where the
+   ground beneath was not seen) rasterised, plus the ground beyond a kerb drop
    beside the walk (`kerbs.py`: height profiles across the walk aggregated along it) and,
    optionally, local ground steps (smoothed height range > max_step_m within step_window_m),
    inflated by the robot radius (0.3 m,
@@ -64,7 +65,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 5  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 6  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
@@ -94,6 +95,13 @@ class WalkableConfig:
     # (dropped from the collision mesh when trim_collision, else only ignored by the map)
     obstacle_min_z_m: float = 0.1
     obstacle_max_z_m: float = 1.8
+    # overhead: surface higher than this above the local ground (the envs' box top 0.75 m plus
+    # 0.45 m for ground-height noise) blocks the map only where the ground beneath it was not
+    # seen. Where the video saw ground under a canopy or branch, the robot drives under it; where
+    # it did not (foliage on a planter hides the planter's far side), it still blocks. Session 21:
+    # a canopy sagging to 1.8 m 0.13 m beside the GoPro walk split the map (path 93.8 % -> 97.4 %,
+    # 1 component); exact-GT street unchanged. None: every surface up to obstacle_max_z_m blocks
+    overhead_clear_m: Optional[float] = 1.2
     ground_z_m: float = 0.0
     min_ground_hits: int = 1  # ground points needed to mark a cell as seen ground
     close_radius_m: float = 0.3  # morphological closing of the ground evidence
@@ -400,11 +408,14 @@ def floater_faces(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarray,
 
 
 def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
-                    origin: np.ndarray, conf: WalkableConfig, min_z: float) -> np.ndarray:
+                    origin: np.ndarray, conf: WalkableConfig, min_z: float,
+                    seen: Optional[np.ndarray] = None) -> np.ndarray:
     """xy [P, 2] of collision-surface samples (resolution / 3 apart) that can touch the robot:
     between min_z and obstacle_max_z_m above the local ground z [H, W], or inside the robot's
     box band [body_bottom_m, body_top_m] above z = 0 (the envs' ground plane), whichever
-    holds (the band only with trim_collision: without it this is the old, height-only map)."""
+    holds (the band only with trim_collision: without it this is the old, height-only map).
+    With seen [H, W] (observed ground) and conf.overhead_clear_m, samples higher than that
+    above the ground over a seen cell are left out (overhead: the robot drives under them)."""
     if collision_mesh is None:
         return np.zeros((0, 2))
     v, f = mesh_arrays(collision_mesh)
@@ -413,7 +424,11 @@ def obstacle_points(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
     pts = points_by_spacing(v, f, conf.resolution_m / 3.0)  # [P, 3]
     h = height_above_ground(pts, ground_z, origin, conf.resolution_m)
     in_body = (pts[:, 2] >= conf.body_bottom_m) & (pts[:, 2] <= conf.body_top_m) & conf.trim_collision
-    return pts[((h >= min_z) & (h <= conf.obstacle_max_z_m)) | in_body, :2]
+    block = ((h >= min_z) & (h <= conf.obstacle_max_z_m)) | in_body  # [P]
+    if seen is not None and conf.overhead_clear_m is not None:
+        r, c = _cells(pts[:, :2], origin, seen.shape, conf.resolution_m)
+        block &= in_body | ~((h > conf.overhead_clear_m) & seen[r, c])
+    return pts[block, :2]
 
 
 def obstacle_cells(collision_mesh: Optional[MeshLike], ground_z: np.ndarray,
@@ -523,7 +538,7 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m)
     min_z = conf.body_bottom_m if conf.trim_collision else step
     steps = step_cells(gp, origin, shape, conf, walked) | beyond_kerb(gp, path, origin, shape, conf, walked)
-    pts = obstacle_points((v, f), gz, origin, conf, min_z)  # [P, 2]
+    pts = obstacle_points((v, f), gz, origin, conf, min_z, seen)  # [P, 2]
     if conf.fill_holes and conf.fill_to_obstacles:
         occ = steps | _rasterise(pts, origin, shape, res)
         seen |= ndimage.binary_fill_holes(seen | occ) & ~occ
