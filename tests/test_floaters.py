@@ -7,7 +7,8 @@ import numpy as np
 import trimesh
 
 from tests.test_walkable_map import PATH, box, plane_points
-from vid2sim.factory.geometry.walkable import WalkableConfig, face_components, physical_layer
+from vid2sim.factory.geometry.floaters import face_components
+from vid2sim.factory.geometry.walkable import WalkableConfig, physical_layer
 
 BLOB = (1.0, 0.3)  # 0.2 x 0.2 x 0.15 m lump 0.25 m above the pavement, beside the walk
 BOLLARD = (2.5, 0.55)  # 0.12 x 0.12 x 0.9 m pole standing on the ground

@@ -1,0 +1,56 @@
+"""Floaters in a collision mesh: small pieces that nothing holds up (reconstruction phantoms).
+
+`face_components` labels the connected pieces of a triangle mesh (pieces closer than a join
+distance count as one object); `floater_faces` marks the pieces that are small and whose lowest
+vertex lies clearly above the local ground. The walkable stage (`walkable.physical_layer`) drops
+them when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+
+def face_components(vertices: np.ndarray, faces: np.ndarray, join_m: float = 0.0) -> np.ndarray:
+    """Connected-component label [F] of each face of (vertices [V, 3], faces [F, 3]); faces
+    sharing a vertex position (to 1e-6 m), or with vertices within join_m of each other, are
+    connected."""
+    if len(faces) == 0:
+        return np.zeros(0, np.int64)
+    _, vid = np.unique(np.round(vertices * 1e6), axis=0, return_inverse=True)
+    vid = vid.reshape(-1)
+    f = vid[faces]  # [F, 3] merged vertex ids
+    a, b = [f[:, 0], f[:, 1]], [f[:, 1], f[:, 2]]
+    if join_m > 0:
+        pairs = cKDTree(vertices).query_pairs(join_m, output_type="ndarray")  # [E, 2]
+        a, b = a + [vid[pairs[:, 0]]], b + [vid[pairs[:, 1]]]
+    a, b = np.concatenate(a), np.concatenate(b)
+    n = int(vid.max()) + 1
+    graph = coo_matrix((np.ones(len(a), np.int8), (a, b)), shape=(n, n))
+    return connected_components(graph, directed=False)[1][f[:, 0]]
+
+
+def floater_faces(vertices: np.ndarray, faces: np.ndarray, vertex_height: np.ndarray,
+                  gap_m: float, max_area_m2: float, join_m: float = 0.0,
+                  max_low_m: float = np.inf) -> np.ndarray:
+    """Faces [F] bool of floaters: connected components (pieces within join_m of each other
+    joined: one surface split by cleanup stays one object) whose lowest vertex lies more than
+    gap_m above the local ground (nothing holds them up; vertex_height [V] is each vertex's
+    height above it) and whose area is below max_area_m2 (real overhangs, canopies and facades
+    are large; real small obstacles stand on the ground). Components whose lowest vertex lies
+    above max_low_m are left alone."""
+    if len(faces) == 0 or max_area_m2 <= 0:
+        return np.zeros(len(faces), bool)
+    lab = face_components(vertices, faces, join_m)  # [F]
+    h = vertex_height[faces].min(axis=1)  # [F] lowest vertex above the ground
+    tri = vertices[faces]  # [F, 3, 3]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    n = int(lab.max()) + 1
+    low = np.full(n, np.inf)
+    np.minimum.at(low, lab, h)
+    comp_area = np.bincount(lab, weights=area, minlength=n)
+    floater = (low > gap_m) & (low < max_low_m) & (comp_area < max_area_m2)  # [C]
+    return floater[lab]
