@@ -58,6 +58,12 @@ class SfMConfig:
     lens: LensHint = field(default_factory=LensHint)  # hints for camera_model="auto"
     num_threads: int = 2
     seed: int = 0
+    # True: COLMAP runs on one thread, so the same frames give the same model bit for bit. With
+    # more, image ids follow extraction completion order and each worker thread's RANSAC random
+    # state depends on which pairs it ran before (measured: 2 threads gave fx 428 / 434 px and
+    # 3.0k / 4.0k points on two runs of the GoPro clip; 1 thread identical). num_threads then
+    # only applies when this is False.
+    deterministic: bool = True
     undistort: bool = True
     min_frames: int = 10
     min_registered_fraction: float = 0.8
@@ -144,6 +150,11 @@ def choose_camera(conf: SfMConfig, images_dir: Path, first: str) -> CameraChoice
 
 # ----------------------------------------------------------------------------- COLMAP steps
 
+def colmap_threads(conf: SfMConfig) -> int:
+    """Threads for COLMAP's thread pools: 1 when the run must be reproducible."""
+    return 1 if conf.deterministic else conf.num_threads
+
+
 def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
             masks: Optional[Path], cam: CameraChoice) -> None:
     import pycolmap
@@ -156,7 +167,7 @@ def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
         ro.mask_path = str(masks)
     eo = pycolmap.FeatureExtractionOptions()
     eo.max_image_size = conf.max_image_size
-    eo.num_threads = conf.num_threads
+    eo.num_threads = colmap_threads(conf)
     eo.use_gpu = False
     eo.sift.max_num_features = conf.max_num_features
     eo.sift.first_octave = conf.first_octave
@@ -169,12 +180,12 @@ def match(conf: SfMConfig, db: Path) -> None:
     import pycolmap
 
     mo = pycolmap.FeatureMatchingOptions()
-    mo.num_threads = conf.num_threads
+    mo.num_threads = colmap_threads(conf)
     mo.use_gpu = False
     po = pycolmap.SequentialPairingOptions()
     po.overlap = conf.overlap
     po.quadratic_overlap = conf.quadratic_overlap
-    po.num_threads = conf.num_threads
+    po.num_threads = colmap_threads(conf)
     if conf.loop_detection:
         if not conf.vocab_tree_path or not Path(conf.vocab_tree_path).is_file():
             raise StageError(STAGE, "missing_vocab_tree",
@@ -217,7 +228,7 @@ def map_global(conf: SfMConfig, db: Path, images_dir: Path, out: Path) -> dict:
     import pycolmap
 
     o = pycolmap.GlobalPipelineOptions()
-    o.num_threads = conf.num_threads
+    o.num_threads = colmap_threads(conf)
     o.random_seed = conf.seed
     ba = o.mapper.bundle_adjustment
     ba.refine_focal_length = ba.refine_extra_params = intrinsics_refined(conf)
@@ -231,7 +242,7 @@ def map_incremental(conf: SfMConfig, db: Path, images_dir: Path, out: Path) -> d
     import pycolmap
 
     o = pycolmap.IncrementalPipelineOptions()
-    o.num_threads = conf.num_threads
+    o.num_threads = colmap_threads(conf)
     o.random_seed = conf.seed
     o.multiple_models = False
     refine = intrinsics_refined(conf)
@@ -315,7 +326,7 @@ def undistort(out_dir: Path, images_dir: Path, masks: Optional[Path], rec: Any,
 
     und = out_dir / "undistorted"
     pycolmap.undistort_images(str(und), str(out_dir / "sparse" / "0"), str(images_dir),
-                              output_type="COLMAP", num_threads=conf.num_threads)
+                              output_type="COLMAP", num_threads=colmap_threads(conf))
     for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
         p = und / extra
         shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
