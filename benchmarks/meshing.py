@@ -163,6 +163,10 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # session 21 default: above 1.2 m only over unseen ground; this row is the map before it
     "default without the overhead rule (every surface up to 1.8 m blocks; before session 21)": (
         dict(carve=CarveConfig()), dict(overhead_clear_m=None), {}),
+    # session 22 default: what the trim leaves of a lump peaking < 2 sigma above the step goes
+    # with it; this row is the map before that rule
+    "default without the lump-top rule (before session 22)": (
+        dict(carve=CarveConfig()), dict(lump_noise_k=0.0), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

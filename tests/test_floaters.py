@@ -61,3 +61,44 @@ def test_piece_split_off_a_standing_obstacle_is_kept():
     layer = physical_layer(gp, trimesh.util.concatenate([planter, piece]), PATH,
                            WalkableConfig(floater_max_area_m2=1.0))
     assert (layer.vertices[:, 2] > 0.4).any()  # the split-off piece is still there
+
+
+def mound(cx: float, cy: float, peak: float, sigma: float = 0.3, half: float = 0.5,
+          step: float = 0.05) -> trimesh.Trimesh:
+    """A smooth bump of the pavement (a height field peaking at `peak`): a noise lump."""
+    g = np.arange(-half, half + 1e-9, step)
+    x, y = np.meshgrid(g, g)  # [n, n]
+    z = peak * np.exp(-(x ** 2 + y ** 2) / sigma ** 2)
+    n = len(g)
+    v = np.stack([x.ravel() + cx, y.ravel() + cy, z.ravel()], axis=1)
+    i = np.arange(n * n).reshape(n, n)[:-1, :-1].ravel()
+    f = np.concatenate([np.stack([i, i + 1, i + n], 1), np.stack([i + 1, i + n + 1, i + n], 1)])
+    return trimesh.Trimesh(v, f, process=False)
+
+
+def test_what_the_trim_leaves_of_a_lump_goes_with_it():
+    """Wavy ground (+-3 cm, 1.6 m period: the step is 6 x the measured noise, ~0.2 m) and a
+    pavement lump peaking one noise sigma above the step beside the walk: the trim drops its
+    faces below the step and leaves its cap, which blocks the walk; the lump-top rule drops the
+    cap too. A post and a 0.45 m block that the trim also cut (their bottom faces) and a thin
+    plate above the step that it did not cut are kept. On exact ground (noise 0) the rule keeps
+    even a lump."""
+    gp = plane_points(-4, 4, -2, 2)
+    gp[:, 2] = 0.03 * np.sin(2 * np.pi * gp[:, 0] / 1.6)  # every object sits where it is 0
+    lump, post, block, plate = (0.8, -0.35), (-1.6, 0.7), (2.4, -0.8), (-2.4, -0.9)
+    step = physical_layer(gp, box(*post, 0.1, 0.1, 0.6), PATH, WalkableConfig()).step_m
+    noise = step / WalkableConfig().noise_k
+    assert 0.15 < step < 0.25
+    mesh = trimesh.util.concatenate([mound(*lump, peak=step + noise), box(*post, 0.1, 0.1, 0.6),
+                                     box(*block, 0.3, 0.3, 0.45),
+                                     box(*plate, 0.3, 0.3, 0.02, z0=step + 0.02)])
+    before = physical_layer(gp, mesh, PATH, WalkableConfig(lump_noise_k=0.0))
+    assert near(before.vertices, lump, 0.2)
+    assert not before.walkable.lookup(np.array([0.8]), np.array([0.0])).any()  # the cap blocks
+    layer = physical_layer(gp, mesh, PATH, WalkableConfig())
+    assert not near(layer.vertices, lump, 0.5)
+    assert layer.walkable.lookup(np.array([0.8]), np.array([0.0])).all()
+    for kept in (post, block, plate):
+        assert near(layer.vertices, kept, 0.25), kept
+    exact = physical_layer(plane_points(-4, 4, -2, 2), mound(*lump, peak=0.18), PATH, WalkableConfig())
+    assert near(exact.vertices, lump, 0.2)

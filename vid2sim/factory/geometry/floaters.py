@@ -2,8 +2,10 @@
 
 `face_components` labels the connected pieces of a triangle mesh (pieces closer than a join
 distance count as one object); `floater_faces` marks the pieces that are small and whose lowest
-vertex lies clearly above the local ground. The walkable stage (`walkable.physical_layer`) drops
-them when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14).
+vertex lies clearly above the local ground; `lump_tops` marks what trimming the sub-step faces
+leaves of a noise lump that peaks just above the step. The walkable stage (`walkable.physical_layer`) drops
+floaters when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14) and
+lump tops when `WalkableConfig.lump_top_m` > 0 (on).
 """
 
 from __future__ import annotations
@@ -54,3 +56,24 @@ def floater_faces(vertices: np.ndarray, faces: np.ndarray, vertex_height: np.nda
     comp_area = np.bincount(lab, weights=area, minlength=n)
     floater = (low > gap_m) & (low < max_low_m) & (comp_area < max_area_m2)  # [C]
     return floater[lab]
+
+
+def lump_tops(vertices: np.ndarray, faces: np.ndarray, kept: np.ndarray,
+              vertex_height: np.ndarray, max_top_m: float) -> np.ndarray:
+    """Faces [F] bool among the kept ones (kept [F] bool: faces left after a trim) that form a
+    connected piece which the trim cut (it shares a vertex with a dropped face) and whose
+    highest vertex lies below max_top_m above the local ground (vertex_height [V])."""
+    out = np.zeros(len(faces), bool)
+    if not kept.any() or kept.all():
+        return out
+    kf = faces[kept]  # [K, 3]
+    lab = face_components(vertices, kf)  # [K]
+    n = int(lab.max()) + 1
+    dropped_vertex = np.zeros(len(vertices), bool)
+    dropped_vertex[faces[~kept].reshape(-1)] = True
+    cut = np.zeros(n, bool)
+    np.logical_or.at(cut, lab, dropped_vertex[kf].any(axis=1))
+    top = np.full(n, -np.inf)
+    np.maximum.at(top, lab, vertex_height[kf].max(axis=1))
+    out[np.flatnonzero(kept)] = (cut & (top < max_top_m))[lab]
+    return out
