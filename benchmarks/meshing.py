@@ -167,6 +167,8 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # with it; this row is the map before that rule
     "default without the lump-top rule (before session 22)": (
         dict(carve=CarveConfig()), dict(lump_noise_k=0.0), {}),
+    # session 22 default: 0.025 m map cells; this row is the 0.05 m map of sessions 20-21
+    "default with 0.05 m map cells (before session 22)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.05), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

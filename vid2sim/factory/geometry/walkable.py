@@ -161,8 +161,11 @@ class WalkableConfig:
     # ground model (evidence, heights, noise, kerbs) stays at resolution_m, the clearance test
     # (cell centre within robot_radius_m of a surface sample) runs on these finer cells. At
     # 0.1 m a cell centre lies up to 0.07 m from a point in the cell, so a walked position
-    # 0.345 m from a surface fell in a blocked cell (demo street path 97.1 -> 98.9 % at 0.05)
-    map_resolution_m: float = 0.05
+    # 0.345 m from a surface fell in a blocked cell (demo street path 97.1 -> 98.9 % at 0.05).
+    # Session 22, 0.05 -> 0.025 (a centre within 0.018 m of any point in its cell): demo path
+    # 98.9 -> 99.3 %, GoPro 97.8 -> 98.2 %; +0.1 CPU-s per clip; the envs' planner searches the
+    # finer grid in ~5 ms per distance field (demo street, 300 x 908 cells)
+    map_resolution_m: float = 0.025
     # floaters (`floater_faces`): a connected component of the collision mesh (pieces within
     # floater_join_m joined: cleanup splits one surface into pieces 1-4 cm apart, e.g. a demo
     # planter face) that could block the map (lowest vertex below obstacle_max_z_m), whose
