@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from vid2sim.factory.runtime.pipeline import PipelineConfig, preset
+from vid2sim.factory.runtime.pipeline import PipelineConfig, preset, stage_specs
 from vid2sim.formats.scene import make_scene_json
 from vid2sim.versioning import config_hash
 
@@ -36,3 +36,13 @@ def test_unknown_config_field_is_named():
     data["decode"]["fsp"] = 12.0
     with pytest.raises(TypeError, match="DecodeConfig.*fsp"):
         PipelineConfig.from_dict(data)
+
+
+def test_sfm_stage_reserves_one_cpu_when_colmap_runs_on_one_thread():
+    """Deterministic SfM (the default) uses one COLMAP thread, so its stage reserves one CPU and
+    another clip's stage can run beside it; every other stage reserves the clip's share."""
+    assert preset("fast").resolved().sfm.deterministic
+    specs = {s.name: s for s in stage_specs(2.0, 0.0, 1.0)}
+    assert specs["sfm"].num_cpus == 1.0
+    assert all(s.num_cpus == 2.0 for name, s in specs.items() if name != "sfm")
+    assert all(s.num_cpus == 2.0 for s in stage_specs(2.0))

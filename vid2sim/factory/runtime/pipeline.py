@@ -279,9 +279,15 @@ STAGES: list[tuple[str, Callable[[dict], dict]]] = [
 ]
 
 
-def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0) -> list[StageSpec]:
-    """The chain; each stage runs against the work store when the context names one."""
-    return [StageSpec(name, OnStore(fn), num_cpus=cpus_per_clip,
+def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0,
+                cpus_for_sfm: Optional[float] = None) -> list[StageSpec]:
+    """The chain; each stage runs against the work store when the context names one.
+    cpus_for_sfm: what the sfm stage reserves (default cpus_per_clip; 1 when COLMAP runs on
+    one thread, `SfMConfig.deterministic`, so another clip's stage can use the other cores)."""
+    def cpus(name: str) -> float:
+        return cpus_for_sfm if name == "sfm" and cpus_for_sfm is not None else cpus_per_clip
+
+    return [StageSpec(name, OnStore(fn), num_cpus=cpus(name),
                       num_gpus=gpus_for_recon if name == "recon" else 0.0) for name, fn in STAGES]
 
 
@@ -349,6 +355,7 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
             raise StageError("commit", "commit_failed", str(e)) from e
         committed[rec.scene_id] = rec.version
 
-    results = run_clips(clips, stage_specs(cpus, gpus), max_retries=max_retries, on_update=on_update,
+    sfm_cpus = min(1.0, cpus) if conf.sfm.deterministic else cpus
+    results = run_clips(clips, stage_specs(cpus, gpus, sfm_cpus), max_retries=max_retries, on_update=on_update,
                         on_clip_done=commit) if clips else []
     return IngestReport(failed + results, committed, time.perf_counter() - t0)
