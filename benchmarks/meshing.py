@@ -37,6 +37,7 @@ from common import hardware_line  # noqa: E402  (benchmarks/common.py)
 from vid2sim.factory.evaluation.corridor import corridor_check  # noqa: E402
 from vid2sim.factory.geometry.map_evidence import path_miss_causes  # noqa: E402
 from vid2sim.factory.geometry.carving import CarveConfig  # noqa: E402
+from vid2sim.factory.geometry.kerbs import KerbConfig  # noqa: E402
 from vid2sim.factory.evaluation.geometry_metrics import chamfer_points, erode_walkable, grid_iou  # noqa: E402
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproject, build_meshes
 from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
@@ -169,6 +170,10 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
         dict(carve=CarveConfig()), dict(lump_noise_k=0.0), {}),
     # session 22 default: 0.025 m map cells; this row is the 0.05 m map of sessions 20-21
     "default with 0.05 m map cells (before session 22)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.05), {}),
+    # session 22 default: kerb drops found across up to 2 m of bins without ground (a planter
+    # hides the outer sidewalk); these rows are 1 m and the adjoining-bins rule before it
+    "default, kerb drops across gaps up to 1 m": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=1.0)), {}),
+    "default without kerb drops across gaps (before session 22)": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=0.0)), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

@@ -80,3 +80,20 @@ def test_unseen_ground_between_the_walk_and_a_kerb_grows_when_enclosed():
     assert grown.lookup(np.array([1.0]), np.array([-0.55])).all()
     assert not plain.lookup(np.array([1.0]), np.array([-0.55])).any()
     assert not grown.lookup(np.array([1.0, 1.0]), np.array([-0.9, -1.5])).any()  # kerb, road
+
+
+def test_a_kerb_behind_a_band_without_ground_is_found_where_the_road_is_seen_again():
+    """A planter hides the sidewalk's outer part and the kerb from a forward-looking camera:
+    no ground between 0.5 m and 1.7 m from the walk, the kerb at 1.5 m. The drop is found
+    across the band (max_gap_m), at the first seen road bins; with adjoining bins only
+    (max_gap_m = 0) it is not found at all."""
+    z, seen = noisy_ground(0.12, edge_y=-1.5)
+    _, Y = centres()
+    seen &= ~((Y < -0.5) & (Y > -1.7))
+    X = centres()[0]
+    inner = np.abs(X) < 3.5
+    out = kerb_cells(z, seen, ORIGIN, RES, PATH, 0.25, KerbConfig())
+    assert KerbConfig().max_gap_m >= 1.2
+    assert out[inner & (Y < -1.9)].mean() > 0.99  # the road beyond the band
+    assert not out[inner & (Y > -1.4)].any()  # the seen sidewalk and most of the band
+    assert not kerb_cells(z, seen, ORIGIN, RES, PATH, 0.25, KerbConfig(max_gap_m=0.0)).any()

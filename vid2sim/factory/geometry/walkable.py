@@ -64,7 +64,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 7  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 8  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
