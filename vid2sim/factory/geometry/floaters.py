@@ -3,9 +3,9 @@
 `face_components` labels the connected pieces of a triangle mesh (pieces closer than a join
 distance count as one object); `floater_faces` marks the pieces that are small and whose lowest
 vertex lies clearly above the local ground; `lump_tops` marks what trimming the sub-step faces
-leaves of a noise lump that peaks just above the step. The walkable stage (`walkable.physical_layer`) drops
-floaters when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14) and
-lump tops when `WalkableConfig.lump_top_m` > 0 (on).
+leaves of a noise lump that peaks just above the step. The walkable stage
+(`walkable.physical_layer`) drops floaters when `WalkableConfig.floater_max_area_m2` > 0 (off
+by default; README, issue 14) and lump tops when `WalkableConfig.lump_noise_k` > 0 (on).
 """
 
 from __future__ import annotations
