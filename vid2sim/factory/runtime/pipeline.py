@@ -283,7 +283,7 @@ def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0,
                 cpus_for_sfm: Optional[float] = None) -> list[StageSpec]:
     """The chain; each stage runs against the work store when the context names one.
     cpus_for_sfm: what the sfm stage reserves (default cpus_per_clip; 1 when COLMAP runs on
-    one thread, `SfMConfig.deterministic`, so another clip's stage can use the other cores)."""
+    one thread, `sfm.colmap_threads`, so another clip's stage can use the other cores)."""
     def cpus(name: str) -> float:
         return cpus_for_sfm if name == "sfm" and cpus_for_sfm is not None else cpus_per_clip
 
@@ -355,7 +355,7 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
             raise StageError("commit", "commit_failed", str(e)) from e
         committed[rec.scene_id] = rec.version
 
-    sfm_cpus = min(1.0, cpus) if conf.sfm.deterministic else cpus
+    sfm_cpus = min(1.0, cpus) if sfm.colmap_threads(conf.sfm) == 1 else cpus
     results = run_clips(clips, stage_specs(cpus, gpus, sfm_cpus), max_retries=max_retries, on_update=on_update,
                         on_clip_done=commit) if clips else []
     return IngestReport(failed + results, committed, time.perf_counter() - t0)
