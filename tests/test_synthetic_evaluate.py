@@ -9,6 +9,7 @@ import trimesh
 from vid2sim.factory.evaluation.geometry_metrics import erode_walkable
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import preset
+from vid2sim.factory.synthetic.geometry import GROUND_MATERIALS, POLE
 from vid2sim.factory.evaluation.synthetic_gt import scene_errors, street_config
 from vid2sim.factory.synthetic.make_street import main as make_street
 from vid2sim.factory.synthetic.street import generate_street
@@ -33,6 +34,25 @@ def test_ground_truth_scores_perfectly_even_when_shifted(tmp_path):
     assert err["ate_m"] < 1e-6 and err["metric_scale_error_pct"] < 1e-6
     assert err["collision_accuracy_m"] < 0.05  # sampling distance only
     assert err["walkable_iou"] > 0.99
+    by_material = {k: v for k, v in err.items() if k.startswith("near_path_completeness_")}
+    assert "near_path_completeness_pole" in by_material and len(by_material) >= 3
+    assert min(by_material.values()) > 0.99
+
+
+def test_completeness_by_material_names_the_missing_obstacles(tmp_path):
+    """A collision mesh without the poles is incomplete on the poles only."""
+    conf = preset("test", seed=2, duration_s=3.0)
+    out = make_street(conf, tmp_path / "street")
+    scene = generate_street(conf)
+    keep = ~np.isin(scene.face_material, GROUND_MATERIALS + (POLE,))
+    mesh = trimesh.Trimesh(scene.vertices, scene.triangles[keep], process=False)
+    g, o, r = scene.walkable_grid()
+    err = scene_errors(PosedClip.load(out), out, mesh, erode_walkable(WalkableGrid(g, o, r), 0.3),
+                       samples=20_000)
+    assert err["near_path_completeness_pole"] < 0.05
+    others = [v for k, v in err.items() if k.startswith("near_path_completeness_") and not k.endswith("pole")]
+    assert others and min(others) > 0.99
+    assert err["near_path_completeness"] < 0.99  # the poles are part of the whole figure
 
 
 def test_gt_robot_centre_map_keeps_exactly_the_robot_radius_from_obstacles():

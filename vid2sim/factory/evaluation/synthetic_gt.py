@@ -22,6 +22,7 @@ from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
+from vid2sim.factory.synthetic.geometry import MATERIAL_NAMES
 from vid2sim.factory.synthetic.street import StreetScene, generate_street
 from vid2sim.formats.walkable import WalkableGrid
 
@@ -98,12 +99,14 @@ def collision_mesh_gt(collision: MeshLike, s: float, R: np.ndarray, t: np.ndarra
     return s * v @ R.T + t, f
 
 
-def visible_obstacle_points(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
-                            scale: float = 0.25, max_depth_m: float = 8.0) -> np.ndarray:
-    """GT obstacle surface [P, 3] seen by the GT cameras (ray cast of the whole street at a
-    reduced resolution, hits kept where they lie on the obstacles, not the ground)."""
+def visible_obstacle_surface(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
+                             scale: float = 0.25, max_depth_m: float = 8.0
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """GT obstacle surface seen by the GT cameras: points [P, 3] and their face's material id
+    [P] (synthetic.geometry ids). Ray cast of the whole street at a reduced resolution, hits
+    kept where they lie on the obstacles, not the ground."""
     rend = RaycastRenderer((scene.vertices, scene.triangles))
-    pts = []
+    pts, mats = [], []
     for f in gt_clip.frames[::every]:
         K = np.asarray(f.K, np.float64).copy()
         K[:2] *= scale
@@ -111,19 +114,34 @@ def visible_obstacle_points(gt_clip: PosedClip, scene: StreetScene, every: int =
         o = rend.render(K, f.cam_to_world, w, h)
         keep = (o.depth > 0) & (o.depth < max_depth_m)
         pts.append(backproject(o.depth, K, f.cam_to_world)[keep])
-    p = np.concatenate(pts)  # [P, 3]
-    return p[distance_to_mesh(p, *scene.without_ground()) < 0.01]
+        mats.append(scene.face_material[o.face_id[keep]])
+    p, m = np.concatenate(pts), np.concatenate(mats)  # [P, 3], [P]
+    on_obstacle = distance_to_mesh(p, *scene.without_ground()) < 0.01
+    return p[on_obstacle], m[on_obstacle]
+
+
+def visible_obstacle_points(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
+                            scale: float = 0.25, max_depth_m: float = 8.0) -> np.ndarray:
+    """The points [P, 3] of `visible_obstacle_surface`."""
+    return visible_obstacle_surface(gt_clip, scene, every, scale, max_depth_m)[0]
 
 
 def near_path_figures(rec: np.ndarray, dist: np.ndarray, path: np.ndarray, gt_clip: PosedClip,
                       scene: StreetScene, mesh_gt: tuple, radius_m: float = 5.0,
                       tol_m: float = 0.1) -> dict:
     """Collision accuracy (median) and completeness (visible GT obstacle surface within tol_m
-    of the mesh) for geometry within radius_m (horizontal) of the walked path (GT frame)."""
+    of the mesh) for geometry within radius_m (horizontal) of the walked path (GT frame); the
+    completeness also per obstacle material (`near_path_completeness_<material>`, the share
+    of that material's visible surface within tol_m: where the missed surface lies)."""
     tree = cKDTree(path[:, :2])
     near_rec = tree.query(rec[:, :2])[0] <= radius_m
-    gt = visible_obstacle_points(gt_clip, scene)
-    gt = gt[tree.query(gt[:, :2])[0] <= radius_m]
+    gt, material = visible_obstacle_surface(gt_clip, scene)
+    near_gt = tree.query(gt[:, :2])[0] <= radius_m
+    gt, material = gt[near_gt], material[near_gt]
     d_gt = distance_to_mesh(gt, *mesh_gt) if len(gt) else np.zeros(0)
-    return {"near_path_accuracy_median_m": float(np.median(dist[near_rec])) if near_rec.any() else float("nan"),
-            "near_path_completeness": float(np.mean(d_gt <= tol_m)) if len(d_gt) else float("nan")}
+    out = {"near_path_accuracy_median_m": float(np.median(dist[near_rec])) if near_rec.any() else float("nan"),
+           "near_path_completeness": float(np.mean(d_gt <= tol_m)) if len(d_gt) else float("nan")}
+    for mat_id in np.unique(material):
+        of_mat = material == mat_id
+        out[f"near_path_completeness_{MATERIAL_NAMES[int(mat_id)]}"] = float(np.mean(d_gt[of_mat] <= tol_m))
+    return out
