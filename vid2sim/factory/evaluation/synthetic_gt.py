@@ -22,7 +22,7 @@ from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
-from vid2sim.factory.synthetic.geometry import MATERIAL_NAMES
+from vid2sim.factory.synthetic.geometry import GROUND_MATERIALS, MATERIAL_NAMES
 from vid2sim.factory.synthetic.street import StreetScene, generate_street
 from vid2sim.formats.walkable import WalkableGrid
 
@@ -102,11 +102,14 @@ def collision_mesh_gt(collision: MeshLike, s: float, R: np.ndarray, t: np.ndarra
 def visible_obstacle_surface(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
                              scale: float = 0.25, max_depth_m: float = 8.0
                              ) -> tuple[np.ndarray, np.ndarray]:
-    """GT obstacle surface seen by the GT cameras: points [P, 3] and their face's material id
-    [P] (synthetic.geometry ids). Ray cast of the whole street at a reduced resolution, hits
-    kept where they lie on the obstacles, not the ground."""
+    """GT obstacle surface seen by the GT cameras: points [P, 3] and the material id [P]
+    (synthetic.geometry ids) of the obstacle face each lies on. Ray cast of the whole street at
+    a reduced resolution, hits kept where they lie on the obstacles (within 1 cm), not the
+    ground."""
+    import open3d as o3d
+
     rend = RaycastRenderer((scene.vertices, scene.triangles))
-    pts, mats = [], []
+    pts = []
     for f in gt_clip.frames[::every]:
         K = np.asarray(f.K, np.float64).copy()
         K[:2] *= scale
@@ -114,10 +117,15 @@ def visible_obstacle_surface(gt_clip: PosedClip, scene: StreetScene, every: int 
         o = rend.render(K, f.cam_to_world, w, h)
         keep = (o.depth > 0) & (o.depth < max_depth_m)
         pts.append(backproject(o.depth, K, f.cam_to_world)[keep])
-        mats.append(scene.face_material[o.face_id[keep]])
-    p, m = np.concatenate(pts), np.concatenate(mats)  # [P, 3], [P]
-    on_obstacle = distance_to_mesh(p, *scene.without_ground()) < 0.01
-    return p[on_obstacle], m[on_obstacle]
+    p = np.concatenate(pts).astype(np.float32)  # [P, 3]
+    obstacles = o3d.t.geometry.RaycastingScene()
+    vertices, triangles = scene.without_ground()
+    obstacles.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
+                            o3d.core.Tensor(triangles.astype(np.uint32)))
+    nearest = obstacles.compute_closest_points(o3d.core.Tensor(p))
+    on_obstacle = np.linalg.norm(nearest["points"].numpy() - p, axis=1) < 0.01
+    material = scene.face_material[~np.isin(scene.face_material, GROUND_MATERIALS)]  # per obstacle face
+    return p[on_obstacle].astype(np.float64), material[nearest["primitive_ids"].numpy()[on_obstacle]]
 
 
 def visible_obstacle_points(gt_clip: PosedClip, scene: StreetScene, every: int = 4,
