@@ -174,6 +174,12 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # hides the outer sidewalk); these rows are 1 m and the adjoining-bins rule before it
     "default, kerb drops across gaps up to 1 m": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=1.0)), {}),
     "default without kerb drops across gaps (before session 22)": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=0.0)), {}),
+    # session 23: meshing depth rendered without the screen-space covariance culling
+    "default without covariance culling": (dict(carve=CarveConfig()), {}, NO_CULL),
+    # session 23 default: TSDF truncation 3.5 voxels (0.35 m); these rows are the 4 voxels
+    # before it and a narrower 3
+    "default with 4-voxel TSDF truncation (before session 23)": (dict(carve=CarveConfig(), trunc_voxels=4.0), {}, {}),
+    "default with 3-voxel TSDF truncation": (dict(carve=CarveConfig(), trunc_voxels=3.0), {}, {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
@@ -237,7 +243,9 @@ def run_from_splats(args) -> list[dict]:
 TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "components"),
               ("corridor_area_m2", "corridor area m2"), ("walkable_iou", "walkable IoU"),
               ("near_path_accuracy_median_m", "acc. median <5 m"),
-              ("near_path_completeness", "compl. <5 m"), ("ground_left_frac", "ground left"),
+              ("near_path_completeness", "compl. <5 m"),
+              *((f"near_path_completeness_{m}", f"compl. {m}") for m in ("brick", "plaster", "pole", "planter", "plant", "car")),
+              ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
               ("gt_walkable_fraction", "GT map: path walkable"), ("gt_clearance_min_m", "GT path clearance m"),
               ("path_clearance_min_m", "our path clearance m"),
