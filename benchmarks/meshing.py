@@ -43,6 +43,7 @@ from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, backproje
 from vid2sim.factory.geometry.raycast import RaycastRenderer, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.synthetic.config import preset
+from vid2sim.factory.synthetic.geometry import GROUND_MATERIALS, MATERIAL_NAMES
 from vid2sim.factory.synthetic.render import intrinsics
 from vid2sim.factory.synthetic.street import generate_street
 from vid2sim.factory.synthetic.trajectory import walking_poses
@@ -244,7 +245,8 @@ TABLE_KEYS = [("walkable_fraction", "path walkable"), ("path_components", "compo
               ("corridor_area_m2", "corridor area m2"), ("walkable_iou", "walkable IoU"),
               ("near_path_accuracy_median_m", "acc. median <5 m"),
               ("near_path_completeness", "compl. <5 m"),
-              *((f"near_path_completeness_{m}", f"compl. {m}") for m in ("brick", "plaster", "pole", "planter", "plant", "car")),
+              *((f"near_path_completeness_{name}", f"compl. {name}")
+                for mat, name in MATERIAL_NAMES.items() if mat not in GROUND_MATERIALS),
               ("ground_left_frac", "ground left"),
               ("collision_accuracy_m", "acc. mean"), ("walkable_area_m2", "walkable m2"),
               ("gt_walkable_fraction", "GT map: path walkable"), ("gt_clearance_min_m", "GT path clearance m"),

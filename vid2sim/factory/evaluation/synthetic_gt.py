@@ -22,7 +22,7 @@ from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
-from vid2sim.factory.synthetic.geometry import GROUND_MATERIALS, MATERIAL_NAMES
+from vid2sim.factory.synthetic.geometry import MATERIAL_NAMES
 from vid2sim.factory.synthetic.street import StreetScene, generate_street
 from vid2sim.formats.walkable import WalkableGrid
 
@@ -41,14 +41,22 @@ def crop_x(wm: WalkableGrid, x0: float, x1: float) -> WalkableGrid:
                        wm.resolution)
 
 
-def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Exact distance (m) from points [P, 3] to a triangle mesh (open3d raycasting scene)."""
+def mesh_scene(vertices: np.ndarray, triangles: np.ndarray):
+    """An open3d RaycastingScene holding one triangle mesh (distance / closest-point queries)."""
     import open3d as o3d
 
     rc = o3d.t.geometry.RaycastingScene()
     rc.add_triangles(o3d.core.Tensor(np.asarray(vertices, np.float32)),
                      o3d.core.Tensor(np.asarray(triangles, np.uint32)))
-    return rc.compute_distance(o3d.core.Tensor(np.asarray(points, np.float32))).numpy()
+    return rc
+
+
+def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Exact distance (m) from points [P, 3] to a triangle mesh."""
+    import open3d as o3d
+
+    query = o3d.core.Tensor(np.asarray(points, np.float32))
+    return mesh_scene(vertices, triangles).compute_distance(query).numpy()
 
 
 def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableGrid,
@@ -118,13 +126,9 @@ def visible_obstacle_surface(gt_clip: PosedClip, scene: StreetScene, every: int 
         keep = (o.depth > 0) & (o.depth < max_depth_m)
         pts.append(backproject(o.depth, K, f.cam_to_world)[keep])
     p = np.concatenate(pts).astype(np.float32)  # [P, 3]
-    obstacles = o3d.t.geometry.RaycastingScene()
-    vertices, triangles = scene.without_ground()
-    obstacles.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)),
-                            o3d.core.Tensor(triangles.astype(np.uint32)))
-    nearest = obstacles.compute_closest_points(o3d.core.Tensor(p))
+    nearest = mesh_scene(*scene.without_ground()).compute_closest_points(o3d.core.Tensor(p))
     on_obstacle = np.linalg.norm(nearest["points"].numpy() - p, axis=1) < 0.01
-    material = scene.face_material[~np.isin(scene.face_material, GROUND_MATERIALS)]  # per obstacle face
+    material = scene.face_material[scene.obstacle_faces()]  # [F_obstacle], without_ground's face order
     return p[on_obstacle].astype(np.float64), material[nearest["primitive_ids"].numpy()[on_obstacle]]
 
 

@@ -58,10 +58,13 @@ class StreetScene:
     def n_faces(self) -> int:
         return len(self.triangles)
 
+    def obstacle_faces(self) -> np.ndarray:
+        """[F] bool: faces that are not ground (asphalt / sidewalk / kerb)."""
+        return ~np.isin(self.face_material, GROUND_MATERIALS)
+
     def without_ground(self) -> tuple[np.ndarray, np.ndarray]:
-        """Collision mesh: all faces except asphalt / sidewalk / kerb; (vertices, triangles)."""
-        keep = ~np.isin(self.face_material, GROUND_MATERIALS)
-        tris = self.triangles[keep]
+        """Collision mesh: the `obstacle_faces`; (vertices, triangles), in face order."""
+        tris = self.triangles[self.obstacle_faces()]
         used, inv = np.unique(tris, return_inverse=True)
         return self.vertices[used], inv.reshape(-1, 3).astype(np.int32)
 
