@@ -152,6 +152,10 @@ def test_floating_fragment_is_dropped():
     v = np.asarray(res.collision.vertices)
     near = np.linalg.norm(v - [-2.8, -2.0, 1.2], axis=1) < 0.4
     assert not near.any()
+    # its depth was carved away, and the stage hands those points on (the walkable stage drops
+    # the pieces they belonged to)
+    carved = res.carved_points
+    assert (np.linalg.norm(carved - [-2.8, -2.0, 1.2], axis=1) < 0.2).sum() >= 10
     # without carving it was reconstructed, then dropped as a fragment (with carving it is not
     # even fused: it floats on the ring path, inside the walker's body)
     raw = meshing.fuse_tsdf(views, MeshingConfig(carve=None)).collision
@@ -181,8 +185,8 @@ def test_walkable_map_against_analytic_gt(scene_data):
 def test_stage_main_writes_and_skips(scene_data, tmp_path):
     _, views, path, _ = scene_data
     out = meshing.main(MeshingConfig(), views, tmp_path / "mesh", input_key="k1")
-    for name in ("collision.ply", "visual_mesh.ply", "ground_points.npy", "meshing.json",
-                 "stage.json"):
+    for name in ("collision.ply", "visual_mesh.ply", "ground_points.npy", "carved_points.npy",
+                 "meshing.json", "stage.json"):
         assert (out / name).is_file(), name
     col = trimesh.load(out / "collision.ply", force="mesh")
     assert len(col.faces) > 100

@@ -5,6 +5,9 @@ splats, or ground truth), writes into `out_dir`:
   collision.ply      triangle mesh for physics, ground removed, cleaned, simplified
   visual_mesh.ply    vertex-coloured mesh WITH the ground (the mesh-RGB baseline)
   ground_points.npy  [N, 3] float32 world points on the fused ground (walkable map)
+  carved_points.npy  [M, 3] float32 world points of the depth pixels the free-space carving
+                     removed (they lay in space proven empty, e.g. the walker's body): the
+                     walkable stage drops the small mesh pieces they belonged to
   meshing.json       summary (face counts, timings, config)
   stage.json         marker (vid2sim.factory.runtime.stage_cache)
 
@@ -32,7 +35,7 @@ faces (multi-view averaged heights) rather than single-view pixels.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Optional
 
@@ -47,7 +50,7 @@ from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class MeshingOutputs:
@@ -56,6 +59,7 @@ class MeshingOutputs:
     collision: str = "collision.ply"  # ground removed
     visual: str = "visual_mesh.ply"  # with the ground, vertex colours
     ground_points: str = "ground_points.npy"  # [N, 3] float32
+    carved_points: str = "carved_points.npy"  # [M, 3] float32
     summary: str = "meshing.json"
 
 
@@ -136,6 +140,7 @@ class FusionResult:
     n_valid_pixels: int
     n_ground_pixels: int
     carve_seconds: float = 0.0
+    carved_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))  # [M, 3]
 
 
 @dataclass
@@ -144,6 +149,7 @@ class MeshingResult:
     visual: o3d.geometry.TriangleMesh
     ground_points: np.ndarray  # [N, 3]
     summary: dict = field(default_factory=dict)
+    carved_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))  # [M, 3]
 
 
 def check_view(view: DepthView, idx: int) -> np.ndarray:
@@ -272,15 +278,29 @@ def depth_edges(depth: np.ndarray, rel: float, radius_px: int) -> np.ndarray:
 
 def carved_depths(views: list[DepthView], conf: MeshingConfig) -> list[np.ndarray]:
     """Depth [H, W] per view with the pixels in proven-empty space removed (conf.carve)."""
+    return carve_views(views, conf)[0]
+
+
+def carve_views(views: list[DepthView], conf: MeshingConfig) -> tuple[list[np.ndarray], np.ndarray]:
+    """`carved_depths`, plus the world points [M, 3] float32 of the pixels the carving removed."""
     depths = [clamped_depth(v, i, conf) for i, v in enumerate(views)]
+    none = np.zeros((0, 3), np.float32)
     if conf.carve is None or not depths or not any(d.any() for d in depths):
-        return depths
+        return depths, none
     Ks = [np.asarray(v.K, np.float64) for v in views]
     c2ws = [np.asarray(v.cam_to_world, np.float64) for v in views]
     space = free_space(depths, Ks, c2ws, conf.depth_max_m, conf.carve)
     carved = space.carved(conf.carve)
-    return [np.where(keep_mask(d, K, c, space, carved, conf.carve), d, 0.0).astype(np.float32)
-            for d, K, c in zip(depths, Ks, c2ws)]
+    in_empty = replace(conf.carve, min_hit_views=1)  # removed as lying in proven-empty space
+    kept, removed = [], [none]
+    for d, K, c in zip(depths, Ks, c2ws):
+        keep = keep_mask(d, K, c, space, carved, conf.carve)
+        kept.append(np.where(keep, d, 0.0).astype(np.float32))
+        gone = (d > 0) & ~(keep if conf.carve.min_hit_views <= 1 else
+                           keep_mask(d, K, c, space, carved, in_empty))
+        if gone.any():
+            removed.append(backproject(d, K, c)[gone].astype(np.float32))
+    return kept, np.concatenate(removed)
 
 
 def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
@@ -295,7 +315,7 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
     ground_pts: list[np.ndarray] = []
     n_valid = n_ground = 0
     with Timer() as t_carve:
-        depths = carved_depths(views, conf)
+        depths, carved_pts = carve_views(views, conf)
     for view, depth in zip(views, depths):
         valid = depth > 0
         H, W = depth.shape
@@ -316,7 +336,7 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
                            f"(range {conf.depth_min_m}..{conf.depth_max_m} m)")
     gp = thin_xy(np.concatenate(ground_pts), conf.ground_point_cell_m)
     return FusionResult(vol_vis.extract_triangle_mesh(), vol_col.extract_triangle_mesh(), gp,
-                        len(views), n_valid, n_ground, round(t_carve.seconds, 3))
+                        len(views), n_valid, n_ground, round(t_carve.seconds, 3), carved_pts)
 
 
 def thin_xy(pts: np.ndarray, cell_m: float) -> np.ndarray:
@@ -403,10 +423,10 @@ def build_meshes(views: Iterable[DepthView], conf: MeshingConfig) -> MeshingResu
     summary = dict(n_views=fused.n_views, n_valid_pixels=fused.n_valid_pixels,
                    n_ground_pixels=fused.n_ground_pixels, raw_collision_faces=raw_faces,
                    collision_faces=len(collision.triangles), visual_faces=len(visual.triangles),
-                   n_ground_points=len(ground_points),
+                   n_ground_points=len(ground_points), n_carved_points=len(fused.carved_points),
                    fuse_seconds=round(t_fuse.seconds, 3), carve_seconds=fused.carve_seconds,
                    clean_seconds=round(t_clean.seconds, 3))
-    return MeshingResult(collision, visual, ground_points, summary)
+    return MeshingResult(collision, visual, ground_points, summary, fused.carved_points)
 
 
 def save_mesh(mesh: o3d.geometry.TriangleMesh, path: Path) -> None:
@@ -432,6 +452,7 @@ def main(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path,
     save_mesh(res.collision, out_dir / OUTPUTS.collision)
     save_mesh(res.visual, out_dir / OUTPUTS.visual)
     np.save(out_dir / OUTPUTS.ground_points, res.ground_points.astype(np.float32))
+    np.save(out_dir / OUTPUTS.carved_points, res.carved_points.astype(np.float32))
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": res.summary, "config": to_jsonable(conf)}, indent=2))
     mark_done(out_dir, STAGE, key, res.summary, t.seconds)
