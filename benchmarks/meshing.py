@@ -88,7 +88,7 @@ def run(args) -> dict:
     res = build_meshes(views, mconf)
     t_mesh = time.perf_counter() - t0
     t0 = time.perf_counter()
-    layer = physical_layer(res.ground_points, res.collision, T[:, :3, 3], wconf)
+    layer = physical_layer(res.ground_points, res.collision, T[:, :3, 3], wconf, res.carved_points)
     wm, collision = layer.walkable, (layer.vertices, layer.faces)  # what the bundle ships
     t_walk = time.perf_counter() - t0
     rec = sample_surface(*mesh_arrays(collision), 200_000)
@@ -181,6 +181,12 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     # before it and a narrower 3
     "default with 4-voxel TSDF truncation (before session 23)": (dict(carve=CarveConfig(), trunc_voxels=4.0), {}, {}),
     "default with 3-voxel TSDF truncation": (dict(carve=CarveConfig(), trunc_voxels=3.0), {}, {}),
+    # session 24 default: after the trim, pieces under 0.1 m^2 and small pieces the carving cut
+    # are dropped; these rows are the map without either rule, and without each
+    "default without the post-trim piece rules (before session 24)": (
+        dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0, min_piece_area_m2=0.0), {}),
+    "default without the carved-piece rule": (dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0), {}),
+    "default without the small-piece rule": (dict(carve=CarveConfig()), dict(min_piece_area_m2=0.0), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 
@@ -223,7 +229,7 @@ def run_from_splats(args) -> list[dict]:
         res = build_meshes(views, mconf)
         t_mesh = time.perf_counter() - t0
         t0 = time.perf_counter()
-        layer = physical_layer(res.ground_points, res.collision, src, wconf)
+        layer = physical_layer(res.ground_points, res.collision, src, wconf, res.carved_points)
         t_walk = time.perf_counter() - t0
         wm, collision = layer.walkable, (layer.vertices, layer.faces)  # what the bundle ships
         row = dict(variant=name, views=res.summary["n_views"], render_s=round(t_render, 2),

@@ -92,7 +92,7 @@ def test_what_the_trim_leaves_of_a_lump_goes_with_it():
     mesh = trimesh.util.concatenate([mound(*lump, peak=step + noise), box(*post, 0.1, 0.1, 0.6),
                                      box(*block, 0.3, 0.3, 0.45),
                                      box(*plate, 0.3, 0.3, 0.02, z0=step + 0.02)])
-    before = physical_layer(gp, mesh, PATH, WalkableConfig(lump_noise_k=0.0))
+    before = physical_layer(gp, mesh, PATH, WalkableConfig(lump_noise_k=0.0, min_piece_area_m2=0.0))
     assert near(before.vertices, lump, 0.2)
     assert not before.walkable.lookup(np.array([0.8]), np.array([0.0])).any()  # the cap blocks
     layer = physical_layer(gp, mesh, PATH, WalkableConfig())
@@ -102,3 +102,41 @@ def test_what_the_trim_leaves_of_a_lump_goes_with_it():
         assert near(layer.vertices, kept, 0.25), kept
     exact = physical_layer(plane_points(-4, 4, -2, 2), mound(*lump, peak=0.18), PATH, WalkableConfig())
     assert near(exact.vertices, lump, 0.2)
+
+
+def test_small_piece_left_after_the_trim_is_dropped():
+    """A 0.06 m^2 chip 0.2 m up beside the walk blocks it unless the small-piece rule drops it;
+    a 0.1 x 0.1 x 0.4 m post (0.18 m^2) is kept."""
+    gp = plane_points(-4, 4, -2, 2)
+    chip, post = (0.5, 0.25), (-1.0, 0.5)
+    mesh = trimesh.util.concatenate([box(*chip, 0.1, 0.1, 0.1, z0=0.2), box(*post, 0.1, 0.1, 0.4)])
+    off = physical_layer(gp, mesh, PATH, WalkableConfig(min_piece_area_m2=0.0))
+    assert near(off.vertices, chip, 0.1)
+    assert not off.walkable.lookup(np.array([chip[0]]), np.array([0.0])).any()
+    layer = physical_layer(gp, mesh, PATH, WalkableConfig())
+    assert not near(layer.vertices, chip, 0.1) and near(layer.vertices, post, 0.1)
+    assert layer.walkable.lookup(np.array([chip[0]]), np.array([0.0])).all()
+
+
+def test_piece_the_carving_cut_is_dropped():
+    """A 0.4 m^2 lump 0.28 m beside the walk with carved depth (the part of it the walker's body
+    swept, removed by the meshing's carving) next to it is a phantom: dropped, and the walk is
+    walkable again. A bollard without carved depth, and a large slab with carved depth beside it
+    (real facades are large), are kept."""
+    gp = plane_points(-4, 4, -2, 2)
+    lump, bollard, slab = (1.0, 0.4), (-1.0, -0.4), (2.6, 0.45)
+    mesh = trimesh.util.concatenate([box(*lump, 0.25, 0.25, 0.3, z0=0.15),
+                                     box(*bollard, 0.12, 0.12, 0.9), box(*slab, 1.2, 0.2, 1.5)])
+    rng = np.random.default_rng(0)
+    carved = np.concatenate([
+        np.stack([rng.uniform(0.9, 1.1, 30), rng.uniform(0.15, 0.25, 30), rng.uniform(0.2, 0.4, 30)], 1),
+        np.stack([rng.uniform(2.2, 3.0, 30), rng.uniform(0.2, 0.3, 30), rng.uniform(0.3, 1.0, 30)], 1)])
+    off = physical_layer(gp, mesh, PATH, WalkableConfig())  # no carved points: nothing to tell
+    assert near(off.vertices, lump, 0.2)
+    assert not off.walkable.lookup(np.array([lump[0]]), np.array([0.0])).any()
+    layer = physical_layer(gp, mesh, PATH, WalkableConfig(), carved_points=carved)
+    assert not near(layer.vertices, lump, 0.2)
+    assert layer.walkable.lookup(np.array([lump[0]]), np.array([0.0])).all()
+    assert near(layer.vertices, bollard, 0.1) and near(layer.vertices, slab, 0.7)
+    few = physical_layer(gp, mesh, PATH, WalkableConfig(cut_min_points=31), carved_points=carved)
+    assert near(few.vertices, lump, 0.2)  # fewer carved points than the rule asks for: kept

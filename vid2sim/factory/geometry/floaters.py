@@ -3,9 +3,11 @@
 `face_components` labels the connected pieces of a triangle mesh (pieces closer than a join
 distance count as one object); `floater_faces` marks the pieces that are small and whose lowest
 vertex lies clearly above the local ground; `lump_tops` marks what trimming the sub-step faces
-leaves of a noise lump that peaks just above the step. The walkable stage
-(`walkable.physical_layer`) drops floaters when `WalkableConfig.floater_max_area_m2` > 0 (off
-by default; README, issue 14) and lump tops when `WalkableConfig.lump_noise_k` > 0 (on).
+leaves of a noise lump that peaks just above the step; `carved_pieces` marks the small pieces
+that the free-space carving cut (part of their depth lay in space proven empty);
+`small_pieces` the pieces with little surface. The walkable stage (`walkable.physical_layer`) drops
+floaters when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14),
+and lump tops, carved pieces and small pieces after the trim (on).
 """
 
 from __future__ import annotations
@@ -77,3 +79,42 @@ def lump_tops(vertices: np.ndarray, faces: np.ndarray, kept: np.ndarray,
     np.maximum.at(top, lab, vertex_height[kf].max(axis=1))
     out[np.flatnonzero(kept)] = (cut & (top < max_top_m))[lab]
     return out
+
+
+def _piece_areas(vertices: np.ndarray, faces: np.ndarray, lab: np.ndarray) -> np.ndarray:
+    """Area [C] (m^2) of each component label of `face_components`."""
+    tri = vertices[faces]  # [F, 3, 3]
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    return np.bincount(lab, weights=area, minlength=int(lab.max()) + 1)
+
+
+def carved_pieces(vertices: np.ndarray, faces: np.ndarray, carved_points: np.ndarray,
+                  max_area_m2: float, near_m: float, min_points: int) -> np.ndarray:
+    """Faces [F] bool of the pieces the carving cut: connected components smaller than
+    max_area_m2 with at least min_points of carved_points [M, 3] (depth the carving removed as
+    lying in proven-empty space, e.g. inside the body the walker swept) within near_m of their
+    vertices (each carved point counts for the piece of its nearest vertex). The carving
+    dropped the part of such a piece that lay in the empty space; what it left just outside is
+    the same phantom, not a real object (a solid object does not reach into space the walker's
+    body went through)."""
+    carved_points = np.asarray(carved_points, np.float64).reshape(-1, 3)
+    if len(faces) == 0 or len(carved_points) == 0 or max_area_m2 <= 0:
+        return np.zeros(len(faces), bool)
+    lab = face_components(vertices, faces)  # [F]
+    vlab = np.full(len(vertices), -1, np.int64)
+    for k in range(3):
+        vlab[faces[:, k]] = lab
+    d, nearest = cKDTree(vertices).query(carved_points, distance_upper_bound=near_m)  # [M]
+    hit = vlab[nearest[np.isfinite(d)]]
+    n = int(lab.max()) + 1
+    count = np.bincount(hit[hit >= 0], minlength=n)  # [C] carved points per piece
+    cut = (count >= min_points) & (_piece_areas(vertices, faces, lab) < max_area_m2)
+    return cut[lab]
+
+
+def small_pieces(vertices: np.ndarray, faces: np.ndarray, min_area_m2: float) -> np.ndarray:
+    """Faces [F] bool of the connected components with less than min_area_m2 of surface."""
+    if len(faces) == 0 or min_area_m2 <= 0:
+        return np.zeros(len(faces), bool)
+    lab = face_components(vertices, faces)
+    return (_piece_areas(vertices, faces, lab) < min_area_m2)[lab]

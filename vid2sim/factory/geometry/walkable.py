@@ -27,7 +27,9 @@ Steps:
    faces whose vertices all lie lower than the step above the local ground are dropped,
    unless within base_radius_m of geometry above the step (an obstacle's base).
    Optionally (floater_max_area_m2 > 0) small components that do not reach down to the local
-   ground (reconstruction floaters) are dropped first.
+   ground (reconstruction floaters) are dropped first. After the trim, what it leaves of noise
+   lumps goes too: lump tops, pieces under `min_piece_area_m2`, and small pieces that the
+   meshing's carving cut (`carved_points`: part of their depth lay inside the walker's body).
 4. obstacles: the remaining collision surface below `obstacle_max_z_m` (1.8 m: awnings and
    canopies above do not block a ground robot; above `overhead_clear_m`, 1.2 m, only where the
    ground beneath was not seen) rasterised, plus the ground beyond a kerb drop
@@ -53,7 +55,7 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.geometry.floaters import floater_faces, lump_tops
+from vid2sim.factory.geometry.floaters import carved_pieces, floater_faces, lump_tops, small_pieces
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
 from vid2sim.factory.geometry.map_evidence import MapEvidence, path_miss_causes
 from vid2sim.factory.geometry.walked_path import walked_path
@@ -64,7 +66,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
-STAGE_VERSION = 8  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 9  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class WalkableOutputs:
@@ -193,6 +195,22 @@ class WalkableConfig:
     # Scaled by the noise like the step: on clean ground (noise ~0) a 0.2 m box the trim cut
     # stays an obstacle. 0 disables
     lump_noise_k: float = 2.0
+    # carved pieces (`floaters.carved_pieces`), after the trim: a piece smaller than
+    # cut_max_area_m2 with >= cut_min_points of the depth pixels the meshing's carving removed
+    # (`carved_points`, at the meshing render scale; by default those inside the walker's swept
+    # body) within cut_near_m is dropped: the body carving removes the part of a splat phantom
+    # that stood in the walker's way and leaves the rest 0.22-0.3 m beside the walk, inside
+    # the robot's radius. Session 24, 320 px splats of the GoPro clip: two pavement phantoms of
+    # 0.1-0.5 m^2 with 800-1500 carved points each (path walkable 80.7 -> 99.6 %); the demo
+    # street and the 160 px builds lose nothing to it. 0 disables
+    cut_max_area_m2: float = 0.5
+    cut_near_m: float = 0.15
+    cut_min_points: int = 10
+    # pieces left with less surface than this after the trim are dropped (`floaters.small_pieces`):
+    # meshing removes fragments (under 40 faces, ~0.1 m^2 at 0.1 m voxels) before the trim, and
+    # the trim makes new ones out of noise lumps (demo street, 320 px splats: a 13-face, 0.05 m^2
+    # piece 0.05-0.17 m up, 0.11 m from the walk, blocked 3.9 % of the path). 0 disables
+    min_piece_area_m2: float = 0.1
 
 
 def _disc(radius_cells: float) -> np.ndarray:
@@ -376,6 +394,17 @@ def trim_below_step(vertices: np.ndarray, faces: np.ndarray, ground_z: np.ndarra
     return _keep_faces(vertices, faces, keep)
 
 
+def drop_trim_leftovers(vertices: np.ndarray, faces: np.ndarray, carved_points: Optional[np.ndarray],
+                        conf: WalkableConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices, faces) without the small pieces (`min_piece_area_m2`) and, given carved_points,
+    the pieces the carving cut (`cut_*`) of a trimmed collision mesh."""
+    drop = small_pieces(vertices, faces, conf.min_piece_area_m2)
+    if carved_points is not None:
+        drop |= carved_pieces(vertices, faces, carved_points, conf.cut_max_area_m2,
+                              conf.cut_near_m, conf.cut_min_points)
+    return _keep_faces(vertices, faces, ~drop) if drop.any() else (vertices, faces)
+
+
 def _keep_faces(vertices: np.ndarray, faces: np.ndarray, keep: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(vertices [V', 3], faces [F', 3]) of the faces where keep [F] holds, unused vertices dropped."""
@@ -481,9 +510,11 @@ def upsample(mask: np.ndarray, k: int) -> np.ndarray:
 
 
 def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
-                   camera_path: np.ndarray, conf: WalkableConfig) -> PhysicalLayer:
+                   camera_path: np.ndarray, conf: WalkableConfig,
+                   carved_points: Optional[np.ndarray] = None) -> PhysicalLayer:
     """Walkable map + trimmed collision mesh (module docstring). ground_points [N, 3],
-    camera_path [T, 3]."""
+    camera_path [T, 3], carved_points [M, 3] (meshing: depth removed as lying in proven-empty
+    space; None = no carved-piece rule)."""
     gp = np.asarray(ground_points, np.float64).reshape(-1, 3)
     path = np.asarray(camera_path, np.float64).reshape(-1, 3)
     if len(path) == 0 or not np.all(np.isfinite(path)):
@@ -514,6 +545,7 @@ def physical_layer(ground_points: np.ndarray, collision_mesh: Optional[MeshLike]
     if conf.trim_collision:
         v, f = trim_below_step(v, f, gz, origin, res, step, conf.base_radius_m,
                                conf.lump_noise_k * noise)
+        v, f = drop_trim_leftovers(v, f, carved_points, conf)
     min_z = conf.body_bottom_m if conf.trim_collision else step
     steps = step_cells(gp, origin, shape, conf, walked) | beyond_kerb(gp, path, origin, shape, conf, walked)
     pts = obstacle_points((v, f), gz, origin, conf, min_z, seen)  # [P, 2]
@@ -545,7 +577,7 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
 
 def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
          camera_path: np.ndarray, out_dir: Path, input_key: str = "",
-         overwrite: bool = False) -> Path:
+         overwrite: bool = False, carved_points: Optional[np.ndarray] = None) -> Path:
     """Stage entry: write walkable.npz into out_dir (skipped when done for this key)."""
     import trimesh
 
@@ -559,7 +591,7 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
     except Exception as e:  # trimesh raises many types for unreadable files
         raise WalkableError("bad_collision_mesh", f"{path}: {e}") from e
     with Timer() as t:
-        layer = physical_layer(ground_points, mesh, camera_path, conf)
+        layer = physical_layer(ground_points, mesh, camera_path, conf, carved_points)
     wm = layer.walkable
     fresh_dir(out_dir)
     wm.save(out_dir / OUTPUTS.grid)

@@ -236,16 +236,18 @@ def stage_meshing(ctx: dict) -> dict:
 
 
 def stage_walkable(ctx: dict) -> dict:
-    """Ground points + fused collision mesh + camera path -> the physical layer (walkable/):
-    walkable grid and the collision mesh that agrees with it."""
+    """Ground points + carved points + fused collision mesh + camera path -> the physical layer
+    (walkable/): walkable grid and the collision mesh that agrees with it."""
     _threads(ctx)
     conf: PipelineConfig = ctx["conf"]
     mesh_dir = Path(ctx["meshing_dir"])
     clip = PosedClip.load(Path(ctx["posed_dir"]))
     path = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3]
+    carved = mesh_dir / meshing.OUTPUTS.carved_points
     walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / meshing.OUTPUTS.ground_points),
                              mesh_dir / meshing.OUTPUTS.collision, path, _dir(ctx, "walkable"),
-                             input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))))
+                             input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))),
+                             carved_points=np.load(carved) if carved.is_file() else None)
     check_corridor(conf.corridor, walk_dir, path)
     return {"walkable_dir": str(walk_dir)}
 
