@@ -12,6 +12,8 @@ and lump tops, carved pieces and small pieces after the trim (on).
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
@@ -50,12 +52,9 @@ def floater_faces(vertices: np.ndarray, faces: np.ndarray, vertex_height: np.nda
         return np.zeros(len(faces), bool)
     lab = face_components(vertices, faces, join_m)  # [F]
     h = vertex_height[faces].min(axis=1)  # [F] lowest vertex above the ground
-    tri = vertices[faces]  # [F, 3, 3]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    n = int(lab.max()) + 1
-    low = np.full(n, np.inf)
+    low = np.full(int(lab.max()) + 1, np.inf)
     np.minimum.at(low, lab, h)
-    comp_area = np.bincount(lab, weights=area, minlength=n)
+    comp_area = piece_areas(vertices, faces, lab)
     floater = (low > gap_m) & (low < max_low_m) & (comp_area < max_area_m2)  # [C]
     return floater[lab]
 
@@ -81,7 +80,7 @@ def lump_tops(vertices: np.ndarray, faces: np.ndarray, kept: np.ndarray,
     return out
 
 
-def _piece_areas(vertices: np.ndarray, faces: np.ndarray, lab: np.ndarray) -> np.ndarray:
+def piece_areas(vertices: np.ndarray, faces: np.ndarray, lab: np.ndarray) -> np.ndarray:
     """Area [C] (m^2) of each component label of `face_components`."""
     tri = vertices[faces]  # [F, 3, 3]
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
@@ -89,18 +88,19 @@ def _piece_areas(vertices: np.ndarray, faces: np.ndarray, lab: np.ndarray) -> np
 
 
 def carved_pieces(vertices: np.ndarray, faces: np.ndarray, carved_points: np.ndarray,
-                  max_area_m2: float, near_m: float, min_points: int) -> np.ndarray:
+                  max_area_m2: float, near_m: float, min_points: int,
+                  lab: Optional[np.ndarray] = None) -> np.ndarray:
     """Faces [F] bool of the pieces the carving cut: connected components smaller than
     max_area_m2 with at least min_points of carved_points [M, 3] (depth the carving removed as
     lying in proven-empty space, e.g. inside the body the walker swept) within near_m of their
     vertices (each carved point counts for the piece of its nearest vertex). The carving
     dropped the part of such a piece that lay in the empty space; what it left just outside is
     the same phantom, not a real object (a solid object does not reach into space the walker's
-    body went through)."""
+    body went through). lab: the faces' `face_components` labels, when already computed."""
     carved_points = np.asarray(carved_points, np.float64).reshape(-1, 3)
     if len(faces) == 0 or len(carved_points) == 0 or max_area_m2 <= 0:
         return np.zeros(len(faces), bool)
-    lab = face_components(vertices, faces)  # [F]
+    lab = face_components(vertices, faces) if lab is None else lab  # [F]
     vlab = np.full(len(vertices), -1, np.int64)
     for k in range(3):
         vlab[faces[:, k]] = lab
@@ -108,13 +108,15 @@ def carved_pieces(vertices: np.ndarray, faces: np.ndarray, carved_points: np.nda
     hit = vlab[nearest[np.isfinite(d)]]
     n = int(lab.max()) + 1
     count = np.bincount(hit[hit >= 0], minlength=n)  # [C] carved points per piece
-    cut = (count >= min_points) & (_piece_areas(vertices, faces, lab) < max_area_m2)
+    cut = (count >= min_points) & (piece_areas(vertices, faces, lab) < max_area_m2)
     return cut[lab]
 
 
-def small_pieces(vertices: np.ndarray, faces: np.ndarray, min_area_m2: float) -> np.ndarray:
-    """Faces [F] bool of the connected components with less than min_area_m2 of surface."""
+def small_pieces(vertices: np.ndarray, faces: np.ndarray, min_area_m2: float,
+                 lab: Optional[np.ndarray] = None) -> np.ndarray:
+    """Faces [F] bool of the connected components with less than min_area_m2 of surface
+    (lab: the faces' `face_components` labels, when already computed)."""
     if len(faces) == 0 or min_area_m2 <= 0:
         return np.zeros(len(faces), bool)
-    lab = face_components(vertices, faces)
-    return (_piece_areas(vertices, faces, lab) < min_area_m2)[lab]
+    lab = face_components(vertices, faces) if lab is None else lab
+    return (piece_areas(vertices, faces, lab) < min_area_m2)[lab]

@@ -55,7 +55,9 @@ import numpy as np
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.geometry.floaters import carved_pieces, floater_faces, lump_tops, small_pieces
+from vid2sim.factory.geometry.floaters import (
+    carved_pieces, face_components, floater_faces, lump_tops, small_pieces,
+)
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
 from vid2sim.factory.geometry.map_evidence import MapEvidence, path_miss_causes
 from vid2sim.factory.geometry.walked_path import walked_path
@@ -398,10 +400,13 @@ def drop_trim_leftovers(vertices: np.ndarray, faces: np.ndarray, carved_points: 
                         conf: WalkableConfig) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, faces) without the small pieces (`min_piece_area_m2`) and, given carved_points,
     the pieces the carving cut (`cut_*`) of a trimmed collision mesh."""
-    drop = small_pieces(vertices, faces, conf.min_piece_area_m2)
+    if len(faces) == 0:
+        return vertices, faces
+    lab = face_components(vertices, faces)  # [F], shared by both rules
+    drop = small_pieces(vertices, faces, conf.min_piece_area_m2, lab)
     if carved_points is not None:
         drop |= carved_pieces(vertices, faces, carved_points, conf.cut_max_area_m2,
-                              conf.cut_near_m, conf.cut_min_points)
+                              conf.cut_near_m, conf.cut_min_points, lab)
     return _keep_faces(vertices, faces, ~drop) if drop.any() else (vertices, faces)
 
 

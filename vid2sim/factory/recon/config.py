@@ -129,7 +129,8 @@ def fast() -> ReconConfig:
     accuracy median goes 0.049 -> 0.038 m, completeness 86.1 -> 87.7 % and the walkable IoU
     0.809 -> 0.847, at about twice the training time (README, issue 14; the GoPro clip's path
     holds with the walkable stage's carved-piece rule); 240 px gave less, 3000 iterations at
-    160 px nothing.
+    160 px nothing. Not a win on every street: a second 854 px street trades accuracy for
+    completeness, a 4 s 640 px clip loses on every figure (README, session 24).
     """
     return ReconConfig(
         preset="fast", iterations=2000, max_width=320, sh_degree=2, sh_increase_every=500,
