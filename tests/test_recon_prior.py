@@ -9,7 +9,8 @@ import pytest
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon.config import DepthPriorConfig
 from vid2sim.factory.recon.data import load_views
-from vid2sim.factory.recon.depth_prior import align_disparity, estimate_priors, plane_homography
+from vid2sim.factory.recon.depth_prior import (DepthPrior, align_disparity, estimate_priors, filter_consistent,
+                                               plane_homography)
 from vid2sim.factory.recon.evaluate import load_gt_depths
 from recon_toy import make_toy_clip, toy_poses
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -49,6 +50,43 @@ def test_plane_sweep_depth_is_accurate_where_confident(toy):
             rel.append(np.median(np.abs(pr.depth[ok] - gt[idx][ok]) / gt[idx][ok]))
     assert np.mean(cover) > 0.3
     assert np.median(rel) < 0.08  # fronto-parallel windows on slanted walls at 64 px
+
+
+def test_consistency_filter_keeps_agreeing_depth_and_drops_wrong_depth(toy):
+    """Exact depth in every view is consistent; a patch placed 1.5x too far in one view is not."""
+    clip = PosedClip.load(toy)
+    views = [v for v in load_views(clip, 64) if v.split == "train"]
+    gt = load_gt_depths(toy.parent / "gt_depth", views)
+    priors = {v.index: DepthPrior(gt[v.index].astype(np.float32), gt[v.index] > 0) for v in views}
+    ref = views[len(views) // 2].index
+    wrong = np.zeros_like(priors[ref].confidence)
+    wrong[10:30, 20:44] = True
+    priors[ref] = DepthPrior(np.where(wrong, 1.5, 1.0).astype(np.float32) * priors[ref].depth, priors[ref].confidence)
+    out = filter_consistent(views, priors, DepthPriorConfig())
+    kept = out[ref].confidence
+    assert kept[wrong].mean() < 0.05
+    assert kept[~wrong & (gt[ref] > 0)].mean() > 0.8
+    assert np.all(out[ref].depth[~kept] == 0)
+    others = [v.index for v in views if v.index != ref]
+    assert np.mean([out[i].confidence[gt[i] > 0].mean() for i in others]) > 0.8
+    same = filter_consistent(views, priors, DepthPriorConfig(consistency_rel=0.0))
+    assert same[ref] is priors[ref]
+
+
+def test_consistency_filter_lowers_plane_sweep_outliers(toy):
+    clip = PosedClip.load(toy)
+    views = load_views(clip, 64)
+    gt = load_gt_depths(toy.parent / "gt_depth", views)
+
+    def outliers(conf: DepthPriorConfig) -> tuple[float, int]:
+        priors = estimate_priors(conf, views, clip.points_xyz)
+        rel = np.concatenate([np.abs(p.depth[p.confidence] / gt[i][p.confidence] - 1) for i, p in priors.items()])
+        return float(np.mean(rel > 0.2)), rel.size
+
+    raw, n_raw = outliers(DepthPriorConfig(kind="mvs", num_planes=64, consistency_rel=0.0))
+    filtered, n_filtered = outliers(DepthPriorConfig(kind="mvs", num_planes=64))
+    assert filtered < 0.5 * raw
+    assert n_filtered > 0.3 * n_raw
 
 
 def test_none_prior_is_empty(toy):

@@ -3,7 +3,8 @@
 mvs            plane-sweep stereo over neighbouring posed training frames: fronto-parallel
                planes at inverse-depth steps, neighbour warped by the plane homography, NCC in a
                window, best-2-of-N neighbour aggregation, parabolic refinement. Metric depth
-               (the poses' units) + a confidence mask (score >= min_ncc, textured, in range).
+               (the poses' units) + a confidence mask (score >= min_ncc, textured, in range,
+               and consistent with the neighbouring views' priors: `filter_consistent`).
 depth_anything Depth-Anything-V2 via transformers, ONLY from a local checkpoint folder; its
                relative disparity is aligned (scale, shift) to the sparse SfM points.
 none           no prior (plain 3DGS).
@@ -147,9 +148,52 @@ def plane_sweep(ref: View, neighbours: list[View], near: float, far: float, conf
     return DepthPrior(np.where(confident, depth, 0).astype(np.float32), confident)
 
 
+def consistent_mask(ref: View, prior: DepthPrior, others: list[tuple[View, DepthPrior]],
+                    rel_tol: float, min_views: int) -> np.ndarray:
+    """[H, W] bool: ref's confident pixels whose depth, back-projected and projected into at
+    least `min_views` of `others`, lands within rel_tol x the projected z of that view's own
+    confident prior depth (nearest pixel)."""
+    ys, xs = np.nonzero(prior.confidence)
+    z = prior.depth[ys, xs].astype(np.float64)  # [P]
+    K = ref.K
+    pts_cam = np.stack([(xs + 0.5 - K[0, 2]) / K[0, 0] * z, (ys + 0.5 - K[1, 2]) / K[1, 1] * z, z], 1)
+    pts = pts_cam @ ref.cam_to_world[:3, :3].T + ref.cam_to_world[:3, 3]  # [P, 3] world
+    votes = np.zeros(z.shape, np.int32)
+    for view, other in others:
+        q = pts @ view.world_to_cam[:3, :3].T + view.world_to_cam[:3, 3]  # [P, 3]
+        zq = q[:, 2]
+        front = zq > 1e-6
+        u = np.floor(view.K[0, 0] * q[:, 0] / np.where(front, zq, 1.0) + view.K[0, 2]).astype(np.int64)
+        v = np.floor(view.K[1, 1] * q[:, 1] / np.where(front, zq, 1.0) + view.K[1, 2]).astype(np.int64)
+        inside = front & (u >= 0) & (u < view.width) & (v >= 0) & (v < view.height)
+        ui, vi = u[inside], v[inside]
+        agree = other.confidence[vi, ui] & (np.abs(other.depth[vi, ui] - zq[inside]) <= rel_tol * zq[inside])
+        votes[np.flatnonzero(inside)[agree]] += 1
+    keep = np.zeros_like(prior.confidence)
+    keep[ys[votes >= min_views], xs[votes >= min_views]] = True
+    return keep
+
+
+def filter_consistent(views: list[View], priors: dict[int, DepthPrior], conf: DepthPriorConfig
+                      ) -> dict[int, DepthPrior]:
+    """Priors with the geometrically inconsistent pixels no longer confident (consistent_mask
+    against the conf.consistency_views nearest training views on each side); unchanged when
+    conf.consistency_rel is 0."""
+    if conf.consistency_rel <= 0:
+        return priors
+    ordered = sorted((v for v in views if v.index in priors), key=lambda v: v.index)
+    out = {}
+    for k, ref in enumerate(ordered):
+        lo, hi = max(0, k - conf.consistency_views), k + conf.consistency_views + 1
+        others = [(v, priors[v.index]) for v in ordered[lo:hi] if v.index != ref.index]
+        keep = consistent_mask(ref, priors[ref.index], others, conf.consistency_rel, conf.min_consistent)
+        out[ref.index] = DepthPrior(np.where(keep, priors[ref.index].depth, 0).astype(np.float32), keep)
+    return out
+
+
 def mvs_priors(views: list[View], points: np.ndarray, conf: DepthPriorConfig) -> dict[int, DepthPrior]:
     """Plane-sweep priors for every training view (views without usable neighbours get an
-    empty confidence mask)."""
+    empty confidence mask), then the geometric consistency filter."""
     out = {}
     for ref in views:
         if ref.split != "train":
@@ -161,7 +205,7 @@ def mvs_priors(views: list[View], points: np.ndarray, conf: DepthPriorConfig) ->
             continue
         nbs = choose_neighbours(ref, views, conf.neighbours, median_depth=0.5 * (rng[0] / 0.7 + rng[1] / 1.5))
         out[ref.index] = plane_sweep(ref, nbs, *rng, conf) if nbs else empty
-    return out
+    return filter_consistent(views, out, conf)
 
 
 # ----------------------------------------------------------------------------- Depth Anything
