@@ -71,6 +71,8 @@ def test_consistency_filter_keeps_agreeing_depth_and_drops_wrong_depth(toy):
     assert np.mean([out[i].confidence[gt[i] > 0].mean() for i in others]) > 0.8
     same = filter_consistent(views, priors, DepthPriorConfig(consistency_rel=0.0))
     assert same[ref] is priors[ref]
+    with pytest.raises(StageError, match="bad_prior_config"):
+        filter_consistent(views, priors, DepthPriorConfig(consistency_views=1, min_consistent=3))
 
 
 def test_consistency_filter_lowers_plane_sweep_outliers(toy):

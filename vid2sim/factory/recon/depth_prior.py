@@ -181,6 +181,10 @@ def filter_consistent(views: list[View], priors: dict[int, DepthPrior], conf: De
     conf.consistency_rel is 0."""
     if conf.consistency_rel <= 0:
         return priors
+    if not 1 <= conf.min_consistent <= 2 * conf.consistency_views:
+        raise StageError(STAGE, "bad_prior_config",
+                         f"prior.min_consistent={conf.min_consistent} must lie in 1..2 x "
+                         f"prior.consistency_views ({2 * conf.consistency_views}): no pixel could pass")
     ordered = sorted((v for v in views if v.index in priors), key=lambda v: v.index)
     out = {}
     for k, ref in enumerate(ordered):
