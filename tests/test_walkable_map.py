@@ -103,6 +103,18 @@ def test_walkable_stage_rejects_unreadable_mesh(tmp_path):
     assert e.value.reason == "bad_collision_mesh" and not (tmp_path / "out").exists()
 
 
+def test_point_files_that_are_unreadable_or_misshapen_are_named_errors(tmp_path):
+    good = tmp_path / "ground_points.npy"
+    np.save(good, plane_points(-1, 1, -1, 1).astype(np.float32))
+    assert walkable.load_points(good, "bad_ground_points").shape[1] == 3
+    (tmp_path / "carved_points.npy").write_bytes(b"truncated")
+    np.save(tmp_path / "flat.npy", np.zeros((5, 2), np.float32))
+    for name in ("carved_points.npy", "flat.npy", "absent.npy"):
+        with pytest.raises(WalkableError) as e:
+            walkable.load_points(tmp_path / name, "bad_carved_points")
+        assert e.value.reason == "bad_carved_points" and name in str(e.value)
+
+
 def test_grid_iou_resamples_across_resolution_and_origin():
     a = WalkableGrid(np.ones((20, 20), np.uint8), (0.0, 0.0), 0.1)  # [0, 2]^2
     b = WalkableGrid(np.ones((10, 10), np.uint8), (1.0, 0.0), 0.2)  # [1, 3] x [0, 2]

@@ -580,6 +580,18 @@ def walkable_map(ground_points: np.ndarray, collision_mesh: Optional[MeshLike],
     return physical_layer(ground_points, collision_mesh, camera_path, conf).walkable
 
 
+def load_points(path: Path, reason: str) -> np.ndarray:
+    """Finite points [N, 3] from a .npy file (the meshing stage's ground / carved points), or
+    WalkableError `reason` naming the file and what is wrong with it."""
+    try:
+        pts = np.load(path, allow_pickle=False)
+    except Exception as e:  # missing, truncated, not an .npy file
+        raise WalkableError(reason, f"{path}: unreadable ({type(e).__name__}: {e})") from None
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+        raise WalkableError(reason, f"{path}: expected finite [N, 3] points, got {pts.dtype} {pts.shape}")
+    return pts
+
+
 def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
          camera_path: np.ndarray, out_dir: Path, input_key: str = "",
          overwrite: bool = False, carved_points: Optional[np.ndarray] = None) -> Path:

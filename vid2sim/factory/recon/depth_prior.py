@@ -35,16 +35,22 @@ class DepthPrior:
 
 # ----------------------------------------------------------------------------- helpers
 
-def project_depths(points: np.ndarray, view: View) -> tuple[np.ndarray, np.ndarray]:
-    """Sparse points [M, 3] -> (pixel coords [m, 2] (x, y), z [m]) of those inside the view."""
+def project(points: np.ndarray, view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """World points [P, 3] -> (pixel coords [P, 2] (x, y; pixel j covers [j, j + 1)), camera z [P],
+    inside [P] bool: in front of the camera and within the image)."""
     w2c = view.world_to_cam
-    cam = points @ w2c[:3, :3].T + w2c[:3, 3]
+    cam = points @ w2c[:3, :3].T + w2c[:3, 3]  # [P, 3]
     z = cam[:, 2]
     front = z > 1e-6
-    uv = cam[front] @ view.K.T
-    uv = uv[:, :2] / uv[:, 2:3]
-    inside = (uv[:, 0] >= 0) & (uv[:, 0] < view.width) & (uv[:, 1] >= 0) & (uv[:, 1] < view.height)
-    return uv[inside], z[front][inside]
+    uv = (cam @ view.K.T)[:, :2] / np.where(front, z, 1.0)[:, None]  # [P, 2]
+    inside = front & (uv[:, 0] >= 0) & (uv[:, 0] < view.width) & (uv[:, 1] >= 0) & (uv[:, 1] < view.height)
+    return uv, z, inside
+
+
+def project_depths(points: np.ndarray, view: View) -> tuple[np.ndarray, np.ndarray]:
+    """Sparse points [M, 3] -> (pixel coords [m, 2] (x, y), z [m]) of those inside the view."""
+    uv, z, inside = project(points, view)
+    return uv[inside], z[inside]
 
 
 def depth_range(points: np.ndarray, view: View, percentiles: tuple) -> Optional[tuple[float, float]]:
@@ -160,13 +166,8 @@ def consistent_mask(ref: View, prior: DepthPrior, others: list[tuple[View, Depth
     pts = pts_cam @ ref.cam_to_world[:3, :3].T + ref.cam_to_world[:3, 3]  # [P, 3] world
     votes = np.zeros(z.shape, np.int32)
     for view, other in others:
-        q = pts @ view.world_to_cam[:3, :3].T + view.world_to_cam[:3, 3]  # [P, 3]
-        zq = q[:, 2]
-        front = zq > 1e-6
-        u = np.floor(view.K[0, 0] * q[:, 0] / np.where(front, zq, 1.0) + view.K[0, 2]).astype(np.int64)
-        v = np.floor(view.K[1, 1] * q[:, 1] / np.where(front, zq, 1.0) + view.K[1, 2]).astype(np.int64)
-        inside = front & (u >= 0) & (u < view.width) & (v >= 0) & (v < view.height)
-        ui, vi = u[inside], v[inside]
+        uv, zq, inside = project(pts, view)
+        ui, vi = np.floor(uv[inside]).astype(np.int64).T
         agree = other.confidence[vi, ui] & (np.abs(other.depth[vi, ui] - zq[inside]) <= rel_tol * zq[inside])
         votes[np.flatnonzero(inside)[agree]] += 1
     keep = np.zeros_like(prior.confidence)

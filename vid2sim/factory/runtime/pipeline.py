@@ -244,10 +244,12 @@ def stage_walkable(ctx: dict) -> dict:
     clip = PosedClip.load(Path(ctx["posed_dir"]))
     path = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3]
     carved = mesh_dir / meshing.OUTPUTS.carved_points
-    walk_dir = walkable.main(conf.walkable, np.load(mesh_dir / meshing.OUTPUTS.ground_points),
-                             mesh_dir / meshing.OUTPUTS.collision, path, _dir(ctx, "walkable"),
+    ground = walkable.load_points(mesh_dir / meshing.OUTPUTS.ground_points, "bad_ground_points")
+    walk_dir = walkable.main(conf.walkable, ground, mesh_dir / meshing.OUTPUTS.collision, path,
+                             _dir(ctx, "walkable"),
                              input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))),
-                             carved_points=np.load(carved) if carved.is_file() else None)
+                             carved_points=walkable.load_points(carved, "bad_carved_points")
+                             if carved.is_file() else None)
     check_corridor(conf.corridor, walk_dir, path)
     return {"walkable_dir": str(walk_dir)}
 
