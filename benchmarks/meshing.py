@@ -187,6 +187,12 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
         dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0, min_piece_area_m2=0.0), {}),
     "default without the carved-piece rule": (dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0), {}),
     "default without the small-piece rule": (dict(carve=CarveConfig()), dict(min_piece_area_m2=0.0), {}),
+    # session 26: the collision volume on open3d's tensor voxel-block grid (`block_tsdf`),
+    # without and with the free-space fill-in of unobserved voxels
+    "default, collision TSDF on voxel blocks": (
+        dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=0), {}, {}),
+    "default, collision TSDF on voxel blocks + free-space fill-in": (
+        dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=1), {}, {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

@@ -1,0 +1,98 @@
+"""TSDF fusion on open3d's sparse voxel-block grid (tensor API), with free-space fill-in.
+
+The meshing stage's optional collision-volume engine (`MeshingConfig.collision_tsdf =
+"blocks"`). Reads depth views (camera z in metres, 0 = not fused); writes nothing: `mesh()`
+returns a legacy open3d TriangleMesh like the ScalableTSDFVolume it replaces.
+
+Fill-in (`fill_free`). Marching cubes makes no surface in a cube with an unobserved corner.
+Beside thin structures (poles) and along silhouettes against a far background, the voxels
+next to a surface are seen only through pixels whose depth was not fused (beyond
+`depth_max_m`, or on the depth-edge rim), so they keep zero weight and the surface there is
+lost. `fill_free` sets such a voxel free (tsdf +1, weight 1) when at least `min_views` views
+see through it: their valid rendered depth lies a truncation band or more beyond it. A filled
+voxel only completes cubes next to observed negative voxels; it never moves an observed surface.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+import open3d as o3d
+import open3d.core as o3c
+
+BLOCK_RESOLUTION = 16  # voxels per block side: the legacy volume's unit size
+INITIAL_BLOCKS = 1024  # the hash map grows past this on demand
+
+
+@numba.njit(cache=True, nogil=True)
+def _see_through(points: np.ndarray, votes: np.ndarray, world_to_cam: np.ndarray, K: np.ndarray,
+                 depth: np.ndarray, valid: np.ndarray, near: float, band: float) -> None:
+    """votes[i] += 1 where the pixel of points[i] holds valid depth >= its camera z + band."""
+    H, W = depth.shape
+    for i in range(points.shape[0]):
+        x = world_to_cam[0, 0] * points[i, 0] + world_to_cam[0, 1] * points[i, 1] + world_to_cam[0, 2] * points[i, 2] + world_to_cam[0, 3]
+        y = world_to_cam[1, 0] * points[i, 0] + world_to_cam[1, 1] * points[i, 1] + world_to_cam[1, 2] * points[i, 2] + world_to_cam[1, 3]
+        z = world_to_cam[2, 0] * points[i, 0] + world_to_cam[2, 1] * points[i, 1] + world_to_cam[2, 2] * points[i, 2] + world_to_cam[2, 3]
+        if z <= near:
+            continue
+        u = int(np.floor(K[0, 0] * x / z + K[0, 2]))  # pixel centres at +0.5
+        v = int(np.floor(K[1, 1] * y / z + K[1, 2]))
+        if 0 <= u < W and 0 <= v < H and valid[v, u] and depth[v, u] - z >= band:
+            votes[i] += 1
+
+
+class BlockTSDF:
+    """Depth-only TSDF (no colour: the collision mesh needs none) on a sparse block grid."""
+
+    def __init__(self, voxel_m: float, trunc_voxels: float, depth_max_m: float) -> None:
+        self.voxel_m, self.trunc_voxels, self.depth_max_m = voxel_m, trunc_voxels, depth_max_m
+        self.grid = o3d.t.geometry.VoxelBlockGrid(
+            ("tsdf", "weight"), (o3c.float32, o3c.float32), ((1), (1)), voxel_m,
+            BLOCK_RESOLUTION, INITIAL_BLOCKS, o3c.Device("CPU:0"))
+
+    @property
+    def trunc_m(self) -> float:
+        return self.trunc_voxels * self.voxel_m
+
+    def integrate(self, depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> None:
+        """Fuse one view: depth [H, W] float32 camera z (0 = skip), K [3, 3] with pixel centres
+        at +0.5 (the tensor kernel floors projections, so K goes in unshifted), cam_to_world
+        [4, 4] OpenCV axes."""
+        if not (depth > 0).any():
+            return
+        img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)))
+        Kt = o3c.Tensor(np.asarray(K, np.float64))
+        ext = o3c.Tensor(np.linalg.inv(np.asarray(cam_to_world, np.float64)))
+        blocks = self.grid.compute_unique_block_coordinates(img, Kt, ext, 1.0, self.depth_max_m,
+                                                            self.trunc_voxels)
+        self.grid.integrate(blocks, img, Kt, ext, 1.0, self.depth_max_m, self.trunc_voxels)
+
+    def fill_free(self, views: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]],
+                  min_views: int, near_m: float = 0.1) -> int:
+        """Set unobserved voxels free that >= min_views views see through (module docstring).
+        views: (depth [H, W] float32 raw rendered depth, valid [H, W] bool, K [3, 3],
+        cam_to_world [4, 4]). Returns the number of voxels filled."""
+        if min_views <= 0 or self.grid.hashmap().size() == 0:
+            return 0
+        coords, index = self.grid.voxel_coordinates_and_flattened_indices()
+        weight = self.grid.attribute("weight").reshape((-1,)).numpy()  # shares memory
+        tsdf = self.grid.attribute("tsdf").reshape((-1,)).numpy()
+        index = index.numpy()
+        unseen = weight[index] <= 0
+        points = np.ascontiguousarray(coords.numpy()[unseen], np.float64)  # [N, 3]
+        votes = np.zeros(len(points), np.int32)
+        for depth, valid, K, c2w in views:
+            w2c = np.linalg.inv(np.asarray(c2w, np.float64))
+            _see_through(points, votes, w2c, np.asarray(K, np.float64),
+                         np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(valid, np.bool_),
+                         near_m, self.trunc_m)
+        filled = index[unseen][votes >= min_views]
+        tsdf[filled] = 1.0
+        weight[filled] = 1.0
+        return int(len(filled))
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        """Marching cubes over cubes whose 8 corners are all observed (or filled)."""
+        if self.grid.hashmap().size() == 0:
+            return o3d.geometry.TriangleMesh()
+        return self.grid.extract_triangle_mesh(0.5).to_legacy()
