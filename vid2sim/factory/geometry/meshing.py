@@ -18,8 +18,9 @@ back-projected point lies within `ground_band_m` (0.15 m) of the ground height s
 view (`view_ground_z`: z = 0 refined by at most `ground_adapt_m`). The height band keeps
 horizontal surfaces that are not the ground (box tops, benches, kerbs above the band). Two
 TSDFs are fused in one pass: the visual one gets every pixel, the collision one gets every
-pixel except the ground pixels. A final face-level filter removes any leftover face whose
-normal and height match the same rule (slivers at ground/obstacle junctions, and the ground
+pixel except the ground pixels (open3d's legacy volume; opt-in, voxel blocks with free-space
+fill-in: `collision_tsdf`, `block_tsdf`). A final face-level filter removes any leftover face
+whose normal and height match the same rule (slivers at ground/obstacle junctions, and the ground
 pixels the rendered normals missed).
 
 Real splat renders (the demo street) differ from GT depth in three ways that shaped the
