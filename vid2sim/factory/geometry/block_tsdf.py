@@ -30,9 +30,11 @@ def _see_through(points: np.ndarray, votes: np.ndarray, world_to_cam: np.ndarray
     """votes[i] += 1 where the pixel of points[i] holds valid depth >= its camera z + band."""
     H, W = depth.shape
     for i in range(points.shape[0]):
-        x = world_to_cam[0, 0] * points[i, 0] + world_to_cam[0, 1] * points[i, 1] + world_to_cam[0, 2] * points[i, 2] + world_to_cam[0, 3]
-        y = world_to_cam[1, 0] * points[i, 0] + world_to_cam[1, 1] * points[i, 1] + world_to_cam[1, 2] * points[i, 2] + world_to_cam[1, 3]
-        z = world_to_cam[2, 0] * points[i, 0] + world_to_cam[2, 1] * points[i, 1] + world_to_cam[2, 2] * points[i, 2] + world_to_cam[2, 3]
+        x, y, z = world_to_cam[0, 3], world_to_cam[1, 3], world_to_cam[2, 3]
+        for k in range(3):  # camera coordinates of points[i]
+            x += world_to_cam[0, k] * points[i, k]
+            y += world_to_cam[1, k] * points[i, k]
+            z += world_to_cam[2, k] * points[i, k]
         if z <= near:
             continue
         u = int(np.floor(K[0, 0] * x / z + K[0, 2]))  # pixel centres at +0.5

@@ -288,13 +288,9 @@ def depth_edges(depth: np.ndarray, rel: float, radius_px: int) -> np.ndarray:
     return valid & (hi - lo > rel * depth) & (depth - lo < hi - depth)
 
 
-def carved_depths(views: list[DepthView], conf: MeshingConfig) -> list[np.ndarray]:
-    """Depth [H, W] per view with the pixels in proven-empty space removed (conf.carve)."""
-    return carve_views(views, conf)[0]
-
-
 def carve_views(views: list[DepthView], conf: MeshingConfig) -> tuple[list[np.ndarray], np.ndarray]:
-    """`carved_depths`, plus the world points [M, 3] float32 of the pixels the carving removed."""
+    """Depth [H, W] per view with the pixels in proven-empty space removed (conf.carve), and
+    the world points [M, 3] float32 of the pixels the carving removed."""
     depths = [clamped_depth(v, i, conf) for i, v in enumerate(views)]
     none = np.zeros((0, 3), np.float32)
     if conf.carve is None or not depths or not any(d.any() for d in depths):
