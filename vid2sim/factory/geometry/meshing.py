@@ -392,29 +392,40 @@ def thin_xy(pts: np.ndarray, cell_m: float) -> np.ndarray:
     return pts[np.sort(first)].astype(np.float32)
 
 
-def pca_vertex_normals(mesh: o3d.geometry.TriangleMesh, radius_m: float) -> np.ndarray:
-    """Unit normals [V, 3] of a mesh's vertices by PCA of the vertices within radius_m
-    (robust to voxel-scale noise, unlike face normals; sign arbitrary)."""
-    pc = o3d.geometry.PointCloud(mesh.vertices)
+def pca_vertex_normals(vertices: np.ndarray, which: np.ndarray, radius_m: float) -> np.ndarray:
+    """Unit normals [K, 3] of vertices[which] ([V, 3], which [K] indices) by PCA of the vertices
+    within radius_m (robust to voxel-scale noise, unlike face normals; sign arbitrary). Only
+    vertices within radius_m in z of the wanted ones can be neighbours, so the search runs on
+    that slab: exact, and the walls and trees above the ground band cost nothing."""
+    z = vertices[which, 2]
+    slab = np.flatnonzero((vertices[:, 2] >= z.min() - radius_m) & (vertices[:, 2] <= z.max() + radius_m))
+    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(vertices[slab]))
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamRadius(radius_m))
-    return np.asarray(pc.normals).copy()
+    return np.asarray(pc.normals)[np.searchsorted(slab, which)]
 
 
 def ground_faces(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig) -> np.ndarray:
-    """Faces [F] bool that are ground: the face normal or the mean PCA normal of its vertices
-    lies within delta of +-z (exact slivers at junctions / noisy flat ground), and the centroid
-    lies in [ground_z - ground_below_m, ground_z + ground_band_m]."""
+    """Faces [F] bool that are ground: the centroid lies in [ground_z - ground_below_m,
+    ground_z + ground_band_m], and the face normal or the mean PCA normal of its vertices lies
+    within delta of +-z (exact slivers at junctions / noisy flat ground)."""
     f = np.asarray(mesh.triangles)
     if len(f) == 0:
         return np.zeros(0, bool)
+    v = np.asarray(mesh.vertices)
+    zc = v[f].mean(axis=1)[:, 2] - conf.ground_z_m  # [F]
+    band = (zc >= -conf.ground_below_m) & (zc < conf.ground_band_m)  # [F]
+    if not band.any():
+        return band
     cos_d = np.cos(np.deg2rad(conf.ground_normal_deg))
     mesh.compute_triangle_normals()
     flat = np.abs(np.asarray(mesh.triangle_normals)[:, 2]) >= cos_d  # [F]
-    if conf.ground_normal_radius_m > 0:
-        n = pca_vertex_normals(mesh, conf.ground_normal_radius_m)  # [V, 3]
-        flat |= np.abs(n[:, 2])[f].mean(axis=1) >= cos_d
-    zc = np.asarray(mesh.vertices)[f].mean(axis=1)[:, 2] - conf.ground_z_m  # [F]
-    return flat & (zc >= -conf.ground_below_m) & (zc < conf.ground_band_m)
+    steep = band & ~flat  # [F] the faces the PCA normals can still make ground
+    if conf.ground_normal_radius_m > 0 and steep.any():
+        fs = f[steep]  # [S, 3]
+        which, inv = np.unique(fs, return_inverse=True)
+        nz = np.abs(pca_vertex_normals(v, which, conf.ground_normal_radius_m)[:, 2])  # [K]
+        flat[steep] = nz[inv.reshape(fs.shape)].mean(axis=1) >= cos_d
+    return flat & band
 
 
 def remove_ground_faces(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig
