@@ -193,6 +193,14 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
         dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=0), {}, {}),
     "default, collision TSDF on voxel blocks + free-space fill-in": (
         dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=1), {}, {}),
+    # session 27 default: rows 35/36 with the map clearing the walker's body radius (0.25 m);
+    # these rows are the legacy engine, the 0.3 m map, and both (session 26's default)
+    "default on the legacy collision TSDF (before session 27)": (
+        dict(carve=CarveConfig(), collision_tsdf="legacy"), {}, {}),
+    "default with the map cleared for 0.3 m (before session 27)": (
+        dict(carve=CarveConfig()), dict(robot_radius_m=0.3), {}),
+    "default on the legacy TSDF, map cleared for 0.3 m (session 26's default)": (
+        dict(carve=CarveConfig(), collision_tsdf="legacy"), dict(robot_radius_m=0.3), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"
 

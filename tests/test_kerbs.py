@@ -52,18 +52,19 @@ def test_flat_ground_small_drops_and_rises_are_not_kerbs(drop):
 
 
 def test_walkable_map_spans_the_sidewalk_to_a_noisy_kerb_and_not_the_road():
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
     rng = np.random.default_rng(1)
     x, y = np.meshgrid(np.arange(-4.5, 4.5, 0.1) + 0.05, np.arange(-2.5, 2.0, 0.1) + 0.05)
     z = np.where(y < -1.0, -0.12, 0.0) + 0.04 * rng.standard_normal(x.shape)
     keep = rng.random(x.shape) > 0.3
     gp = np.stack([x[keep], y[keep], z[keep]], 1)
     path = np.column_stack([PATH, np.full(len(PATH), 1.5)])
-    wm = walkable_map(gp, None, path, WalkableConfig())
+    wm = walkable_map(gp, None, path, WalkableConfig(robot_radius_m=R))
     xs = np.linspace(-3, 3, 13)
     assert wm.lookup(xs, np.full_like(xs, -0.6)).all()  # 0.4 m inside the kerb: walkable
     assert not wm.lookup(xs, np.full_like(xs, -1.5)).any()  # the road
     # the local step test (off by default) fires on the noise next to the kerb instead
-    local = walkable_map(gp, None, path, WalkableConfig(kerb=None, max_step_m=0.08))
+    local = walkable_map(gp, None, path, WalkableConfig(robot_radius_m=R, kerb=None, max_step_m=0.08))
     assert not local.lookup(xs, np.full_like(xs, -0.6)).any()
 
 

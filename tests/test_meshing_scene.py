@@ -156,9 +156,9 @@ def test_floating_fragment_is_dropped():
     # the pieces they belonged to)
     carved = res.carved_points
     assert (np.linalg.norm(carved - [-2.8, -2.0, 1.2], axis=1) < 0.2).sum() >= 10
-    # without carving it was reconstructed, then dropped as a fragment (with carving it is not
-    # even fused: it floats on the ring path, inside the walker's body)
-    raw = meshing.fuse_tsdf(views, MeshingConfig(carve=None)).collision
+    # without carving its depth is fused (the visual volume, every pixel, shows it); with
+    # carving it is not even fused: it floats on the ring path, inside the walker's body
+    raw = meshing.fuse_tsdf(views, MeshingConfig(carve=None)).visual
     assert (np.linalg.norm(np.asarray(raw.vertices) - [-2.8, -2.0, 1.2], axis=1) < 0.4).any()
 
 

@@ -176,12 +176,13 @@ def test_map_cells_finer_than_the_ground_model_keep_a_path_that_clears_a_wall(ma
     """A walk 0.32 m from a wall face clears a 0.3 m robot; on 0.1 m cells its cell's centre
     (0.29 m from the face) does not, on 0.05 m cells it does. Either way every walkable cell's
     centre clears the face by more than the radius."""
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
     from vid2sim.factory.geometry.map_evidence import path_miss_causes
     from vid2sim.factory.geometry.walkable import physical_layer
 
     path = PATH + np.array([0.0, 0.08, 0.0])  # y = 0.08: 0.1 m cell centre y 0.05
     wall = box(0.0, -0.24 - 0.05, 2.0, 0.1, 1.0)  # face at y = -0.24, x in [-1, 1]
-    conf = WalkableConfig(map_resolution_m=map_res)
+    conf = WalkableConfig(robot_radius_m=R, map_resolution_m=map_res)
     layer = physical_layer(plane_points(-4, 4, -2, 2), wall, path, conf)
     wm = layer.walkable
     assert wm.resolution == pytest.approx(map_res)
@@ -211,19 +212,36 @@ def test_overhead_surface_blocks_only_over_unseen_ground():
     the 1.8 m ceiling) does not block where the ground under it was seen, and still blocks
     where it was not (the ground under it might hold anything). `overhead_clear_m=None` keeps
     the old rule: every surface up to 1.8 m blocks."""
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
     branch = box(0.0, 0.5, 1.0, 0.4, 0.2, z0=1.4)  # x [-0.5, 0.5], y [0.3, 0.7], 1.4-1.6 m up
     seen_all = plane_points(-4, 4, -2, 2)
-    wm = walkable_map(seen_all, branch, PATH, WalkableConfig())
+    wm = walkable_map(seen_all, branch, PATH, WalkableConfig(robot_radius_m=R))
     assert wm.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).all()  # the walk and under it
-    old = walkable_map(seen_all, branch, PATH, WalkableConfig(overhead_clear_m=None))
+    old = walkable_map(seen_all, branch, PATH, WalkableConfig(robot_radius_m=R, overhead_clear_m=None))
     assert not old.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).any()
     # no ground seen under the branch (a 1 m wide strip y 0.2-1.2 at x -1..1 left out)
     x, y = seen_all[:, 0], seen_all[:, 1]
     hidden = seen_all[~((np.abs(x) < 1.0) & (y > 0.2) & (y < 1.2))]
     wm2 = walkable_map(hidden, branch, PATH,
-                       WalkableConfig(fill_holes=False, close_radius_m=0.0))
+                       WalkableConfig(robot_radius_m=R, fill_holes=False, close_radius_m=0.0))
     assert not wm2.lookup(np.array([0.0]), np.array([0.0])).any()  # within 0.3 m of the branch
     # geometry in the robot's band blocks whatever the ground evidence says
     post = box(0.0, 0.5, 0.1, 0.1, 1.6)
-    wm3 = walkable_map(seen_all, post, PATH, WalkableConfig())
+    wm3 = walkable_map(seen_all, post, PATH, WalkableConfig(robot_radius_m=R))
     assert not wm3.lookup(np.array([0.0]), np.array([0.5])).any()
+
+
+def test_default_map_clears_the_walkers_body():
+    """The map's clearance is the walker's body radius, the one the corridor check and the body
+    carving use: what the video proves free. A post 0.27 m beside the walk (outside the body,
+    inside a 0.3 m robot half-width) leaves the walk walkable; one 0.2 m beside it blocks it."""
+    from vid2sim.factory.evaluation.corridor import CorridorConfig
+    from vid2sim.factory.geometry.carving import CarveConfig
+
+    radius = WalkableConfig().robot_radius_m
+    assert radius == CorridorConfig().body_radius_m == CarveConfig().body_radius_m == 0.25
+    ground = plane_points(-4, 4, -2, 2)
+    for face_y, walkable_there in ((0.27, True), (0.2, False)):
+        post = box(0.0, face_y + 0.05, 0.1, 0.1, 1.0)  # face toward the walk at y = face_y
+        wm = walkable_map(ground, post, PATH, WalkableConfig())
+        assert bool(wm.lookup(np.array([0.0]), np.array([0.0]))[0]) == walkable_there, face_y

@@ -23,13 +23,14 @@ from scipy.spatial import cKDTree
 
 from vid2sim.factory.evaluation.geometry_metrics import sample_surface
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
-from vid2sim.factory.geometry.walked_path import CorridorError, walked_path  # noqa: F401  (re-exported)
+from vid2sim.factory.geometry.walked_path import (  # noqa: F401  (CorridorError re-exported)
+    BODY_RADIUS_M, CorridorError, walked_path)
 from vid2sim.formats.walkable import WalkableGrid
 
 
 @dataclass(frozen=True)
 class CorridorConfig:
-    body_radius_m: float = 0.25
+    body_radius_m: float = BODY_RADIUS_M
     body_bottom_m: float = 0.2  # above the local ground: kerbs and ground noise stay below
     head_gap_m: float = 0.1  # the body stops this far below the camera
     ground_z_m: float = 0.0  # metric frame: ground plane at z = 0

@@ -20,6 +20,7 @@ from vid2sim.factory.evaluation.walkable_ceiling import ceiling, iou_breakdown, 
 from vid2sim.factory.geometry.surface_sampling import sample_surface
 from vid2sim.factory.geometry.meshing import backproject
 from vid2sim.factory.geometry.raycast import RaycastRenderer
+from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.geometry import MATERIAL_NAMES
@@ -60,7 +61,7 @@ def distance_to_mesh(points: np.ndarray, vertices: np.ndarray, triangles: np.nda
 
 
 def scene_errors(estimate: PosedClip, synthetic_dir: Path, collision: MeshLike, walkable: WalkableGrid,
-                 robot_radius_m: float = 0.3, unseen_m: float = 4.0, samples: int = 200_000,
+                 robot_radius_m: float = BODY_RADIUS_M, unseen_m: float = 4.0, samples: int = 200_000,
                  evidence=None) -> dict:
     """Pose ATE, collision-mesh accuracy (reconstruction -> GT obstacles, m), ground left in the
     collision mesh, and walkable IoU over the walked x range (the first `unseen_m` metres, which a

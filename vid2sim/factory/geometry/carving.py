@@ -21,7 +21,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-from vid2sim.factory.geometry.walked_path import walked_path
+from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M, walked_path
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
 
 
@@ -39,7 +39,7 @@ class CarveConfig:
     margin_rel: float = 0.05  # splat median depth: 3-5 % relative error
     min_free_views: int = 3
     free_ratio: float = 2.0
-    body_radius_m: float = 0.25
+    body_radius_m: float = BODY_RADIUS_M
     body_bottom_m: float = 0.2
     head_gap_m: float = 0.1
     ground_z_m: float = 0.0

@@ -17,10 +17,10 @@ when its rendered normal, rotated to world, lies within `ground_normal_deg` (pap
 back-projected point lies within `ground_band_m` (0.15 m) of the ground height seen by that
 view (`view_ground_z`: z = 0 refined by at most `ground_adapt_m`). The height band keeps
 horizontal surfaces that are not the ground (box tops, benches, kerbs above the band). Two
-TSDFs are fused in one pass: the visual one gets every pixel, the collision one gets every
-pixel except the ground pixels (open3d's legacy volume; opt-in, voxel blocks with free-space
-fill-in: `collision_tsdf`, `block_tsdf`). A final face-level filter removes any leftover face
-whose normal and height match the same rule (slivers at ground/obstacle junctions, and the ground
+TSDFs are fused in one pass: the visual one (open3d's legacy volume) gets every pixel, the
+collision one (voxel blocks with free-space fill-in, `block_tsdf`; `collision_tsdf`) gets every
+pixel except the ground pixels. A final face-level filter removes any leftover face whose
+normal and height match the same rule (slivers at ground/obstacle junctions, and the ground
 pixels the rendered normals missed).
 
 Real splat renders (the demo street) differ from GT depth in three ways that shaped the
@@ -118,14 +118,15 @@ class MeshingConfig:
     edge_px: int = 1
     # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
     carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
-    # TSDF engine of the collision volume: "legacy" (open3d ScalableTSDFVolume) or "blocks"
-    # (`block_tsdf`: tensor VoxelBlockGrid, plus free-space fill-in of unobserved voxels that
-    # fill_free_views views see through; 0 = no fill-in). The visual volume (whose ground
-    # vertices feed the walkable map) stays legacy. Session 26, demo street: completeness
-    # 87.1 -> 89.2 % (blocks) -> 90.4 % (+ fill-in), poles 70 -> 98 -> 99.5 %, path 99.3 ->
-    # 100 %, IoU 0.857 -> 0.856; but on the GoPro clip the path falls 100 -> 95.1 % (a
-    # more complete piece 0.26 m beside the walk's end). Opt-in until that is solved (README)
-    collision_tsdf: str = "legacy"
+    # TSDF engine of the collision volume: "blocks" (`block_tsdf`: tensor VoxelBlockGrid, plus
+    # free-space fill-in of unobserved voxels that fill_free_views views see through; 0 = no
+    # fill-in) or "legacy" (open3d ScalableTSDFVolume, the default until session 26). The
+    # visual volume (whose ground vertices feed the walkable map) stays legacy. Demo street:
+    # completeness 87.1 -> 89.2 % (blocks) -> 90.4 % (+ fill-in), poles 70 -> 98 -> 99.5 %, path
+    # 99.3 -> 100 %. On the GoPro clip the more complete mesh holds ornamental grass 0.25-0.3 m
+    # beside the walk's end, which a map cleared for 0.3 m blocked (path 95.1 %); the map now
+    # clears the walker's body radius (`WalkableConfig.robot_radius_m`; README, session 27)
+    collision_tsdf: str = "blocks"
     fill_free_views: int = 1
 
 

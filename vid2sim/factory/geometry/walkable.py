@@ -35,8 +35,8 @@ Steps:
    ground beneath was not seen) rasterised, plus the ground beyond a kerb drop
    beside the walk (`kerbs.py`: height profiles across the walk aggregated along it) and,
    optionally, local ground steps (smoothed height range > max_step_m within step_window_m),
-   inflated by the robot radius (0.3 m,
-   a sidewalk delivery robot about 0.6 m wide): a cell is blocked when its centre lies within
+   inflated by `robot_radius_m` (the walker's body radius, 0.25 m; environments add their
+   robot's own clearance on top): a cell is blocked when its centre lies within
    the radius of a surface sample (exact distance) or of a kerb-step cell's centre. Steps 1-4
    model the ground on `resolution_m` cells; this clearance test and the map run on the finer
    `map_resolution_m` cells (each ground cell split k x k).
@@ -60,7 +60,7 @@ from vid2sim.factory.geometry.floaters import (
 )
 from vid2sim.factory.geometry.kerbs import KerbConfig, kerb_cells
 from vid2sim.factory.geometry.map_evidence import MapEvidence, path_miss_causes
-from vid2sim.factory.geometry.walked_path import walked_path
+from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M, walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
@@ -93,7 +93,15 @@ class WalkableError(StageError):
 @dataclass
 class WalkableConfig:
     resolution_m: float = 0.1
-    robot_radius_m: float = 0.3
+    # the clearance a walkable cell's centre keeps from collision surface and kerbs: the
+    # walker's body radius, what the video proves free along the walk (session 27; was the
+    # robot's 0.3 m half-width). At 0.3 m the corridor check failed true geometry the walker
+    # passed within 0.25-0.3 m of: ornamental grass on the GoPro clip that the body carving
+    # shows the walker brushing through, and a GT obstacle 0.263 m from the walk of synthetic
+    # street seed 5 (README, session 27). Environments add their robot's own clearance on top
+    # (`EpisodeConfig.clearance` is counted from the surface minus this, read back from the
+    # bundle by `envs.scenes.walkable_inflation`), so their planners keep the same distance
+    robot_radius_m: float = BODY_RADIUS_M
     # the robot's step: collision geometry lower than this above the local ground is ground
     # (dropped from the collision mesh when trim_collision, else only ignored by the map)
     obstacle_min_z_m: float = 0.1

@@ -5,6 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
+# The walker's body: a vertical disc of this radius swept along the walked path is proven
+# empty (the person who filmed walked there). The body carving, the corridor check and the
+# walkable map's clearance all use it.
+BODY_RADIUS_M = 0.25
+
 
 class CorridorError(ValueError):
     """Bad input to the corridor check (reason names the problem)."""
