@@ -63,7 +63,8 @@ def walk_conf(**kw) -> MeshingConfig:
 def box_meshes():
     views = walk_views()
     return {name: build_meshes(views, walk_conf(**kw)) for name, kw in {
-        "legacy": dict(collision_tsdf="legacy"), "blocks": dict(collision_tsdf="blocks", fill_free_views=0),
+        "legacy": dict(collision_tsdf="legacy"),
+        "blocks": dict(collision_tsdf="blocks", fill_free_views=0),
         "fill": dict(collision_tsdf="blocks", fill_free_views=1)}.items()}
 
 

@@ -132,12 +132,13 @@ def test_piece_the_carving_cut_is_dropped():
     carved = np.concatenate([
         np.stack([rng.uniform(0.9, 1.1, 30), rng.uniform(0.15, 0.25, 30), rng.uniform(0.2, 0.4, 30)], 1),
         np.stack([rng.uniform(2.2, 3.0, 30), rng.uniform(0.2, 0.3, 30), rng.uniform(0.3, 1.0, 30)], 1)])
-    off = physical_layer(gp, mesh, PATH, WalkableConfig(robot_radius_m=R))  # no carved points: nothing to tell
+    off = physical_layer(gp, mesh, PATH, WalkableConfig(robot_radius_m=R))  # no carved points
     assert near(off.vertices, lump, 0.2)
     assert not off.walkable.lookup(np.array([lump[0]]), np.array([0.0])).any()
     layer = physical_layer(gp, mesh, PATH, WalkableConfig(robot_radius_m=R), carved_points=carved)
     assert not near(layer.vertices, lump, 0.2)
     assert layer.walkable.lookup(np.array([lump[0]]), np.array([0.0])).all()
     assert near(layer.vertices, bollard, 0.1) and near(layer.vertices, slab, 0.7)
-    few = physical_layer(gp, mesh, PATH, WalkableConfig(robot_radius_m=R, cut_min_points=31), carved_points=carved)
+    few = physical_layer(gp, mesh, PATH, WalkableConfig(robot_radius_m=R, cut_min_points=31),
+                         carved_points=carved)
     assert near(few.vertices, lump, 0.2)  # fewer carved points than the rule asks for: kept

@@ -19,7 +19,8 @@ def same_partition(a: np.ndarray, b: np.ndarray) -> bool:
 
 
 def test_edge_components_match_open3d_on_pieces_and_a_shared_vertex():
-    boxes = [o3d.geometry.TriangleMesh.create_box(1, 1, 1).translate((3.0 * i, 0, 0)) for i in range(3)]
+    boxes = [o3d.geometry.TriangleMesh.create_box(1, 1, 1).translate((3.0 * i, 0, 0))
+             for i in range(3)]
     sphere = o3d.geometry.TriangleMesh.create_sphere(0.5, 12).translate((0, 4, 0))
     whole = boxes[0] + boxes[1] + boxes[2] + sphere
     # two triangles touching at one vertex only: not connected through an edge
@@ -43,7 +44,7 @@ def test_edge_components_match_open3d_on_a_random_soup():
 
 def test_remove_fragments_drops_small_and_short_pieces():
     big = o3d.geometry.TriangleMesh.create_sphere(1.0, 20)  # many faces, 2 m across
-    tiny = o3d.geometry.TriangleMesh.create_sphere(0.05, 20).translate((5, 0, 0))  # many faces, 0.1 m
+    tiny = o3d.geometry.TriangleMesh.create_sphere(0.05, 20).translate((5, 0, 0))  # 0.1 m across
     few = o3d.geometry.TriangleMesh.create_box(1, 1, 1).translate((0, 5, 0))  # 12 faces
     out = remove_fragments(big + tiny + few, min_faces=40, min_extent_m=0.25)
     assert len(out.triangles) == len(big.triangles)

@@ -217,7 +217,8 @@ def test_overhead_surface_blocks_only_over_unseen_ground():
     seen_all = plane_points(-4, 4, -2, 2)
     wm = walkable_map(seen_all, branch, PATH, WalkableConfig(robot_radius_m=R))
     assert wm.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).all()  # the walk and under it
-    old = walkable_map(seen_all, branch, PATH, WalkableConfig(robot_radius_m=R, overhead_clear_m=None))
+    old = walkable_map(seen_all, branch, PATH,
+                       WalkableConfig(robot_radius_m=R, overhead_clear_m=None))
     assert not old.lookup(np.array([0.0, 0.0]), np.array([0.0, 0.5])).any()
     # no ground seen under the branch (a 1 m wide strip y 0.2-1.2 at x -1..1 left out)
     x, y = seen_all[:, 0], seen_all[:, 1]

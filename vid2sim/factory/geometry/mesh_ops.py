@@ -20,7 +20,8 @@ def edge_components(faces: np.ndarray) -> np.ndarray:
     n_f = len(faces)
     face_id = np.tile(np.arange(n_f), 3)  # [3F], the face of each edge slot
     n = n_f + int(edge_id.max()) + 1
-    graph = coo_matrix((np.ones(3 * n_f, np.int8), (face_id, n_f + edge_id.reshape(-1))), shape=(n, n))
+    graph = coo_matrix((np.ones(3 * n_f, np.int8), (face_id, n_f + edge_id.reshape(-1))),
+                       shape=(n, n))  # faces and edges as nodes, a face linked to its 3 edges
     return connected_components(graph, directed=False)[1][:n_f]
 
 

@@ -399,10 +399,13 @@ def pca_vertex_normals(vertices: np.ndarray, which: np.ndarray, radius_m: float)
     vertices within radius_m in z of the wanted ones can be neighbours, so the search runs on
     that slab: exact, and the walls and trees above the ground band cost nothing."""
     z = vertices[which, 2]
-    slab = np.flatnonzero((vertices[:, 2] >= z.min() - radius_m) & (vertices[:, 2] <= z.max() + radius_m))
+    lo, hi = z.min() - radius_m, z.max() + radius_m
+    slab = np.flatnonzero((vertices[:, 2] >= lo) & (vertices[:, 2] <= hi))  # [S] sorted
     pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(vertices[slab]))
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamRadius(radius_m))
-    return np.asarray(pc.normals)[np.searchsorted(slab, which)]
+    row = np.empty(len(vertices), np.int64)
+    row[slab] = np.arange(len(slab))  # vertex index -> row of the slab cloud
+    return np.asarray(pc.normals)[row[which]]
 
 
 def ground_faces(mesh: o3d.geometry.TriangleMesh, conf: MeshingConfig) -> np.ndarray:
