@@ -15,6 +15,8 @@ voxel only completes cubes next to observed negative voxels; it never moves an o
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numba
 import numpy as np
 import open3d as o3d
@@ -81,10 +83,11 @@ class BlockTSDF:
     def trunc_m(self) -> float:
         return self.trunc_voxels * self.voxel_m
 
-    def integrate(self, depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray) -> None:
+    def integrate(self, depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray,
+                  rgb: Optional[np.ndarray] = None) -> None:
         """Fuse one view: depth [H, W] float32 camera z (0 = skip), K [3, 3] with pixel centres
         at +0.5 (the tensor kernel floors projections, so K goes in unshifted), cam_to_world
-        [4, 4] OpenCV axes."""
+        [4, 4] OpenCV axes; rgb is ignored (depth only)."""
         if not (depth > 0).any():
             return
         img = o3d.t.geometry.Image(o3c.Tensor(np.ascontiguousarray(depth, np.float32)))

@@ -258,10 +258,30 @@ def _intrinsic(K: np.ndarray, width: int, height: int) -> o3d.camera.PinholeCame
                                              float(K[0, 2]) - 0.5, float(K[1, 2]) - 0.5)
 
 
-def _new_volume(conf: MeshingConfig) -> o3d.pipelines.integration.ScalableTSDFVolume:
-    return o3d.pipelines.integration.ScalableTSDFVolume(
-        voxel_length=conf.voxel_m, sdf_trunc=conf.trunc_voxels * conf.voxel_m,
-        color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
+class LegacyTSDF:
+    """open3d's coloured ScalableTSDFVolume behind `BlockTSDF`'s interface (integrate,
+    fill_free, mesh). It cannot be edited, so it has no free-space fill-in."""
+
+    def __init__(self, conf: MeshingConfig) -> None:
+        self.conf = conf
+        self.volume = o3d.pipelines.integration.ScalableTSDFVolume(
+            voxel_length=conf.voxel_m, sdf_trunc=conf.trunc_voxels * conf.voxel_m,
+            color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8)
+
+    def integrate(self, depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray,
+                  rgb: Optional[np.ndarray] = None) -> None:
+        """Fuse one view: depth [H, W] float32 (0 = skip), rgb [H, W, 3] uint8 (grey if None)."""
+        H, W = depth.shape
+        rgb = rgb if rgb is not None else np.full((H, W, 3), 128, np.uint8)
+        intrinsic = _intrinsic(np.asarray(K, np.float64), W, H)
+        world_to_cam = np.linalg.inv(np.asarray(cam_to_world, np.float64))
+        self.volume.integrate(_rgbd(depth, rgb, self.conf), intrinsic, world_to_cam)
+
+    def fill_free(self, views: list, min_views: int, near_m: float = 0.1) -> int:
+        return 0
+
+    def mesh(self) -> o3d.geometry.TriangleMesh:
+        return self.volume.extract_triangle_mesh()
 
 
 def clamped_depth(view: DepthView, idx: int, conf: MeshingConfig) -> np.ndarray:
@@ -322,31 +342,14 @@ def _collision_volume(conf: MeshingConfig):
                            f"got {conf.collision_tsdf!r}")
     if conf.collision_tsdf == "blocks":
         return BlockTSDF(conf.voxel_m, conf.trunc_voxels, conf.depth_max_m)
-    return _new_volume(conf)
+    return LegacyTSDF(conf)
 
 
-def _integrate(volume, depth: np.ndarray, rgb: np.ndarray, view: DepthView,
-               conf: MeshingConfig) -> None:
-    """Fuse one view's depth [H, W] (0 = skip) into either engine."""
-    if isinstance(volume, BlockTSDF):
-        volume.integrate(depth, view.K, view.cam_to_world)
-        return
-    H, W = depth.shape
-    volume.integrate(_rgbd(depth, rgb, conf), _intrinsic(np.asarray(view.K, np.float64), W, H),
-                     np.linalg.inv(np.asarray(view.cam_to_world, np.float64)))  # world->cam
-
-
-def _fill_free(volume, views: list[DepthView], conf: MeshingConfig) -> int:
-    """Block engine: free-space fill-in from every view's raw rendered depth (any range)."""
-    if not isinstance(volume, BlockTSDF) or conf.fill_free_views <= 0:
-        return 0
-    raw = [(np.nan_to_num(np.asarray(v.depth, np.float32)), check_view(v, i), v.K, v.cam_to_world)
-           for i, v in enumerate(views)]
-    return volume.fill_free(raw, conf.fill_free_views, conf.depth_min_m)
-
-
-def _extract(volume) -> o3d.geometry.TriangleMesh:
-    return volume.mesh() if isinstance(volume, BlockTSDF) else volume.extract_triangle_mesh()
+def fill_views(views: list[DepthView]) -> list[tuple]:
+    """(raw rendered depth [H, W] float32, valid [H, W], K, cam_to_world) per view: what the
+    free-space fill-in sees through (any range, unlike the fused depth)."""
+    return [(np.nan_to_num(np.asarray(v.depth, np.float32)), check_view(v, i), v.K, v.cam_to_world)
+            for i, v in enumerate(views)]
 
 
 def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
@@ -357,18 +360,17 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
     no valid depth at all.
     """
     views = list(views)
-    vol_vis, vol_col = _new_volume(conf), _collision_volume(conf)
+    vol_vis, vol_col = LegacyTSDF(conf), _collision_volume(conf)
     ground_pts: list[np.ndarray] = []
     n_valid = n_ground = 0
     with Timer() as t_carve:
         depths, carved_pts = carve_views(views, conf)
     for view, depth in zip(views, depths):
         valid = depth > 0
-        H, W = depth.shape
-        rgb = view.rgb if view.rgb is not None else np.full((H, W, 3), 128, np.uint8)
         gmask = ground_mask(view, valid, conf)
-        _integrate(vol_vis, depth, rgb, view, conf)
-        _integrate(vol_col, np.where(gmask, 0.0, depth).astype(np.float32), rgb, view, conf)
+        vol_vis.integrate(depth, view.K, view.cam_to_world, view.rgb)
+        vol_col.integrate(np.where(gmask, 0.0, depth).astype(np.float32), view.K, view.cam_to_world,
+                          view.rgb)
         pts = backproject(depth, view.K, view.cam_to_world)[gmask]  # [P, 3]
         ground_pts.append(thin_xy(pts, conf.ground_point_cell_m))
         n_valid += int(valid.sum())
@@ -378,9 +380,10 @@ def fuse_tsdf(views: Iterable[DepthView], conf: MeshingConfig) -> FusionResult:
     if n_valid == 0:
         raise MeshingError("no_valid_depth", f"all {len(views)} depth views are empty or invalid "
                            f"(range {conf.depth_min_m}..{conf.depth_max_m} m)")
-    n_filled = _fill_free(vol_col, views, conf)
+    n_filled = (vol_col.fill_free(fill_views(views), conf.fill_free_views, conf.depth_min_m)
+                if conf.fill_free_views > 0 else 0)
     gp = thin_xy(np.concatenate(ground_pts), conf.ground_point_cell_m)
-    return FusionResult(_extract(vol_vis), _extract(vol_col), gp, len(views), n_valid, n_ground,
+    return FusionResult(vol_vis.mesh(), vol_col.mesh(), gp, len(views), n_valid, n_ground,
                         round(t_carve.seconds, 3), carved_pts, n_filled)
 
 
