@@ -1,18 +1,17 @@
 """Env mesh rasteriser speed: frames/s at 128x72 for a 162k-triangle street mesh, vs pybullet's
 TinyRenderer drawing the same mesh from the same cameras.
 
-Usage: .venv/bin/python benchmarks/raster.py [--frames 200] [--no-pybullet]
+Usage: .venv/bin/python benchmarks/raster.py [--frames 200] [--no-pybullet] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 
 import numpy as np
 
-from common import hardware_line
+from common import Run, add_run_args
 from vid2sim.envs.raster import rasterize
 
 W, H = 128, 72
@@ -85,19 +84,26 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=200)
     ap.add_argument("--no-pybullet", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="60 frames (smoke run)")
+    add_run_args(ap)
     args = ap.parse_args()
-    mesh = street_mesh()
-    cams = robot_cameras(args.frames)
-    print(hardware_line())
-    print(f"command: {' '.join(['python'] + sys.argv)}")
-    print(f"mesh: {len(mesh[1])} triangles, {len(mesh[0])} vertices; image {W}x{H}; 1 thread")
-    wall, cpu = bench_ours(mesh, cams)
-    print(f"vid2sim.envs.raster.rasterize: {wall:.1f} frames/s wall, {cpu:.1f} per CPU-second")
-    if not args.no_pybullet:
-        wall, cpu = bench_pybullet(mesh, cams[: max(args.frames // 10, 5)])
-        print(f"pybullet ER_TINY_RENDERER (same mesh, same cameras): {wall:.1f} frames/s wall, "
-              f"{cpu:.1f} per CPU-second")
-
+    frames = 60 if args.quick and args.frames == 200 else args.frames
+    with Run("raster", args) as run:
+        mesh = street_mesh()
+        cams = robot_cameras(frames)
+        conf = {"triangles": len(mesh[1]), "vertices": len(mesh[0]), "image": f"{W}x{H}", "threads": 1}
+        print(f"mesh: {len(mesh[1])} triangles, {len(mesh[0])} vertices; image {W}x{H}; 1 thread")
+        wall, cpu = bench_ours(mesh, cams)
+        run.record_all("vid2sim.envs.raster.rasterize", {"fps_wall": wall, "fps_per_cpu_s": cpu},
+                       {"fps_wall": "frames/s", "fps_per_cpu_s": "frames/CPU-s"}, {**conf, "frames": frames})
+        print(f"vid2sim.envs.raster.rasterize: {wall:.1f} frames/s wall, {cpu:.1f} per CPU-second")
+        if not args.no_pybullet:
+            n = max(frames // 10, 5)
+            wall, cpu = bench_pybullet(mesh, cams[:n])
+            run.record_all("pybullet ER_TINY_RENDERER", {"fps_wall": wall, "fps_per_cpu_s": cpu},
+                           {"fps_wall": "frames/s", "fps_per_cpu_s": "frames/CPU-s"}, {**conf, "frames": n})
+            print(f"pybullet ER_TINY_RENDERER (same mesh, same cameras): {wall:.1f} frames/s wall, "
+                  f"{cpu:.1f} per CPU-second")
 
 if __name__ == "__main__":
     main()
