@@ -288,7 +288,7 @@ def main() -> None:
     ap.add_argument("--poses", type=int, default=16)
     ap.add_argument("--reps", type=int, default=3)
     # 0.98: the lightest prune that is >= 400 frames per CPU-s on the demo street and still >= 35 dB
-    # mean on both real scenes (README, session 21); 0.9 + fit: the envs' kind of training trade
+    # mean on both real scenes (docs/results.md, 979cc7c); 0.9 + fit: the envs' kind of training trade
     ap.add_argument("--keep-mass", type=float, nargs="+", default=[0.98, 0.9])
     ap.add_argument("--fit-iterations", type=int, nargs="+", default=[0, 600],
                     help="sim-ready fit steps per --keep-mass entry (repeated when shorter)")

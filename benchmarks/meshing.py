@@ -128,7 +128,7 @@ NO_CULL = dict(cov_cull_alpha=None)
 # before the physical layer: the fused mesh shipped as is, obstacles inflated cell to cell
 OLD = dict(trim_collision=False, exact_inflation=False, kerb=None, max_step_m=0.08, fill_to_obstacles=False,
            map_resolution_m=0.1)
-LOCAL_STEPS = dict(kerb=None, max_step_m=0.08, fill_to_obstacles=False)  # session 18's default
+LOCAL_STEPS = dict(kerb=None, max_step_m=0.08, fill_to_obstacles=False)  # the map before kerb profiles (752e2eb)
 NO_EDGE = dict(edge_rel=0.0)  # rows measured before the depth-edge filter became the default
 VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatViewConfig changes)
     "baseline (fuse every pixel, no ground growth)": (
@@ -145,61 +145,61 @@ VARIANTS = {  # name -> (MeshingConfig changes, WalkableConfig changes, SplatVie
     "+ growth + body + walked ground + 2-view consistency": (dict(carve=CarveConfig(min_hit_views=2), **NO_EDGE), OLD, NO_CULL),
     "default + opacity >= 0.2": (dict(carve=CarveConfig(), **NO_EDGE), {}, dict(min_opacity=0.2)),
     "+ growth + body + walked ground + opacity >= 0.2": (dict(carve=CarveConfig(), **NO_EDGE), OLD, dict(min_opacity=0.2, cov_cull_alpha=None)),
-    # session 19: kerbs from profiles across the walk (default) vs the local step test
+    # kerbs from profiles across the walk (default since 752e2eb) vs the local step test
     "physical layer, local step test (no kerb profiles)": (dict(carve=CarveConfig(), **NO_EDGE), LOCAL_STEPS, {}),
     "physical layer, kerb profiles + local step test": (dict(carve=CarveConfig(), **NO_EDGE), dict(max_step_m=0.08), {}),
     "kerb profiles (default) + ray carving": (dict(carve=CarveConfig(rays=True), **NO_EDGE), {}, {}),
     "default + depth-edge filter 0.2": (dict(carve=CarveConfig(), edge_rel=0.2), {}, {}),
-    "default without the depth-edge filter (session 19 before the switch)": (dict(carve=CarveConfig(), edge_rel=0.0), {}, {}),
+    "default without the depth-edge filter": (dict(carve=CarveConfig(), edge_rel=0.0), {}, {}),
     "default without growth up to obstacles and kerbs": (dict(carve=CarveConfig(), **NO_EDGE), dict(fill_to_obstacles=False), {}),
-    # session 20: the clearance test on 0.05 m map cells (default) vs the ground model's 0.1 m
-    "default with 0.1 m map cells (session 19's default)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.1), {}),
+    # the clearance test on finer map cells (default, 75d15d2) vs the ground model's 0.1 m
+    "default with 0.1 m map cells": (dict(carve=CarveConfig()), dict(map_resolution_m=0.1), {}),
     "default + ray carving": (dict(carve=CarveConfig(rays=True)), {}, {}),
-    # issue 14: unsupported small components of the collision mesh (floaters) dropped
+    # unsupported small components of the collision mesh (floaters) dropped (off by default)
     "default + floaters dropped (< 0.4 m^2, lowest point > max(0.1, 3 sigma) above ground)": (
         dict(carve=CarveConfig()), dict(floater_max_area_m2=0.4), {}),
-    # session 21: the map's obstacle ceiling at the robot's height (box top 0.75 m) plus a margin,
+    # the map's obstacle ceiling at the robot's height (box top 0.75 m) plus a margin,
     # instead of a person's 1.8 m (a canopy the robot drives under does not block it)
     "default, obstacles up to 1.0 m (robot top 0.75 + 0.25)": (dict(carve=CarveConfig()), dict(obstacle_max_z_m=1.0), {}),
     "default, obstacles up to 1.2 m (robot top 0.75 + 0.45)": (dict(carve=CarveConfig()), dict(obstacle_max_z_m=1.2), {}),
-    # session 21 default: above 1.2 m only over unseen ground; this row is the map before it
-    "default without the overhead rule (every surface up to 1.8 m blocks; before session 21)": (
+    # default since 2fc8cd1: above 1.2 m only over unseen ground; this row is the map without it
+    "default without the overhead rule (every surface up to 1.8 m blocks)": (
         dict(carve=CarveConfig()), dict(overhead_clear_m=None), {}),
-    # session 22 default: what the trim leaves of a lump peaking < 2 sigma above the step goes
-    # with it; this row is the map before that rule
-    "default without the lump-top rule (before session 22)": (
+    # default since fef55cf: what the trim leaves of a lump peaking < 2 sigma above the step
+    # goes with it; this row is the map without that rule
+    "default without the lump-top rule": (
         dict(carve=CarveConfig()), dict(lump_noise_k=0.0), {}),
-    # session 22 default: 0.025 m map cells; this row is the 0.05 m map of sessions 20-21
-    "default with 0.05 m map cells (before session 22)": (dict(carve=CarveConfig()), dict(map_resolution_m=0.05), {}),
-    # session 22 default: kerb drops found across up to 2 m of bins without ground (a planter
+    # default since 143fbfa: 0.025 m map cells; this row is the 0.05 m map before it
+    "default with 0.05 m map cells": (dict(carve=CarveConfig()), dict(map_resolution_m=0.05), {}),
+    # default since 5614713: kerb drops found across up to 2 m of bins without ground (a planter
     # hides the outer sidewalk); these rows are 1 m and the adjoining-bins rule before it
     "default, kerb drops across gaps up to 1 m": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=1.0)), {}),
-    "default without kerb drops across gaps (before session 22)": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=0.0)), {}),
-    # session 23: meshing depth rendered without the screen-space covariance culling
+    "default without kerb drops across gaps": (dict(carve=CarveConfig()), dict(kerb=KerbConfig(max_gap_m=0.0)), {}),
+    # meshing depth rendered without the screen-space covariance culling
     "default without covariance culling": (dict(carve=CarveConfig()), {}, NO_CULL),
-    # session 23 default: TSDF truncation 3.5 voxels (0.35 m); these rows are the 4 voxels
+    # default since d77ba5f: TSDF truncation 3.5 voxels (0.35 m); these rows are the 4 voxels
     # before it and a narrower 3
-    "default with 4-voxel TSDF truncation (before session 23)": (dict(carve=CarveConfig(), trunc_voxels=4.0), {}, {}),
+    "default with 4-voxel TSDF truncation": (dict(carve=CarveConfig(), trunc_voxels=4.0), {}, {}),
     "default with 3-voxel TSDF truncation": (dict(carve=CarveConfig(), trunc_voxels=3.0), {}, {}),
-    # session 24 default: after the trim, pieces under 0.1 m^2 and small pieces the carving cut
+    # default since 171ad22: after the trim, pieces under 0.1 m^2 and small pieces the carving cut
     # are dropped; these rows are the map without either rule, and without each
-    "default without the post-trim piece rules (before session 24)": (
+    "default without the post-trim piece rules": (
         dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0, min_piece_area_m2=0.0), {}),
     "default without the carved-piece rule": (dict(carve=CarveConfig()), dict(cut_max_area_m2=0.0), {}),
     "default without the small-piece rule": (dict(carve=CarveConfig()), dict(min_piece_area_m2=0.0), {}),
-    # session 26: the collision volume on open3d's tensor voxel-block grid (`block_tsdf`),
+    # the collision volume on open3d's tensor voxel-block grid (`block_tsdf`),
     # without and with the free-space fill-in of unobserved voxels
     "default, collision TSDF on voxel blocks": (
         dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=0), {}, {}),
     "default, collision TSDF on voxel blocks + free-space fill-in": (
         dict(carve=CarveConfig(), collision_tsdf="blocks", fill_free_views=1), {}, {}),
-    # session 27 default: rows 35/36 with the map clearing the walker's body radius (0.25 m);
-    # these rows are the legacy engine, the 0.3 m map, and both (session 26's default)
-    "default on the legacy collision TSDF (before session 27)": (
+    # default since 484c1ae: rows 35/36 with the map clearing the walker's body radius (0.25 m);
+    # these rows are the legacy engine, the 0.3 m map, and both (the default before 484c1ae)
+    "default on the legacy collision TSDF": (
         dict(carve=CarveConfig(), collision_tsdf="legacy"), {}, {}),
-    "default with the map cleared for 0.3 m (before session 27)": (
+    "default with the map cleared for 0.3 m": (
         dict(carve=CarveConfig()), dict(robot_radius_m=0.3), {}),
-    "default on the legacy TSDF, map cleared for 0.3 m (session 26's default)": (
+    "default on the legacy TSDF, map cleared for 0.3 m": (
         dict(carve=CarveConfig(), collision_tsdf="legacy"), dict(robot_radius_m=0.3), {}),
 }
 DEFAULT_VARIANT = "+ collision trimmed below the step (physical layer, default)"

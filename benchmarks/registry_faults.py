@@ -1,4 +1,4 @@
-"""Fault injection (issue 11): every case against a copy of a registry of a few hundred scenes.
+"""Fault injection: every case against a copy of a registry of a few hundred scenes.
 
     .venv/bin/python benchmarks/registry_faults.py [--scenes 300] [--root DIR]
 
