@@ -1,6 +1,6 @@
 """A short distributed rollout/training job for the 2-node cluster test.
 
-The training package (issue 13) is not on main yet, so this uses plain Ray actors stepping a real
+It uses plain Ray actors (not the training package, so it tests distribution alone) stepping a real
 Gymnasium env (CartPole-v1) and trains a linear policy by random search (the driver keeps the
 best perturbation each round). Each actor first checks the committed scene out of the registry
 on its own node (object store, nothing shared) and reads its walkable map, so the job proves the

@@ -1,4 +1,4 @@
-"""Issue 11 case 6: non-finite or degenerate values in a bundle are refused with a named error."""
+"""Non-finite or degenerate values in a bundle are refused with a named error."""
 
 from __future__ import annotations
 

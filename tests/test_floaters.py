@@ -123,7 +123,7 @@ def test_piece_the_carving_cut_is_dropped():
     swept, removed by the meshing's carving) next to it is a phantom: dropped, and the walk is
     walkable again. A bollard without carved depth, and a large slab with carved depth beside it
     (real facades are large), are kept."""
-    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until 484c1ae)
     gp = plane_points(-4, 4, -2, 2)
     lump, bollard, slab = (1.0, 0.4), (-1.0, -0.4), (2.6, 0.45)
     mesh = trimesh.util.concatenate([box(*lump, 0.25, 0.25, 0.3, z0=0.15),

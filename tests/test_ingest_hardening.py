@@ -1,4 +1,4 @@
-"""Issue 11, ingest side: scene ids name the exact clip; bad manifest values are refused."""
+"""Ingest hardening: scene ids name the exact clip; bad manifest values are refused."""
 
 from __future__ import annotations
 

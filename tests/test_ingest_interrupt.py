@@ -1,4 +1,4 @@
-"""Issue 11 case 8: Ctrl-C during a real ingest says what finished and how to resume."""
+"""Ctrl-C during a real ingest says what finished and how to resume."""
 
 from __future__ import annotations
 

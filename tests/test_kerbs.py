@@ -52,7 +52,7 @@ def test_flat_ground_small_drops_and_rises_are_not_kerbs(drop):
 
 
 def test_walkable_map_spans_the_sidewalk_to_a_noisy_kerb_and_not_the_road():
-    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until 484c1ae)
     rng = np.random.default_rng(1)
     x, y = np.meshgrid(np.arange(-4.5, 4.5, 0.1) + 0.05, np.arange(-2.5, 2.0, 0.1) + 0.05)
     z = np.where(y < -1.0, -0.12, 0.0) + 0.04 * rng.standard_normal(x.shape)

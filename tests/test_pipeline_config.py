@@ -1,4 +1,4 @@
-"""PipelineConfig round-trips through scene.json; the presets set what README says."""
+"""PipelineConfig round-trips through scene.json; the presets set what docs/factory.md says."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Issue 11 faults on real files: lost or damaged manifest logs, unaccounted and corrupt blobs.
+"""Registry faults on real files: lost or damaged manifest logs, unaccounted and corrupt blobs.
 
 Each test damages a real registry the way a user or a crash would (deleting or truncating real
 Delta log files, corrupting real blobs) and checks that the registry says so instead of looking

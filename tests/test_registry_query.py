@@ -1,4 +1,4 @@
-"""Issue 11 case 4: `registry query` is read-only SQL over the manifests, nothing more.
+"""`registry query` is read-only SQL over the manifests, nothing more.
 
 Each attack the issue reproduced runs against a real registry through the real CLI and must be
 refused with one named line, leaving no file behind.

@@ -176,7 +176,7 @@ def test_map_cells_finer_than_the_ground_model_keep_a_path_that_clears_a_wall(ma
     """A walk 0.32 m from a wall face clears a 0.3 m robot; on 0.1 m cells its cell's centre
     (0.29 m from the face) does not, on 0.05 m cells it does. Either way every walkable cell's
     centre clears the face by more than the radius."""
-    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until 484c1ae)
     from vid2sim.factory.geometry.map_evidence import path_miss_causes
     from vid2sim.factory.geometry.walkable import physical_layer
 
@@ -212,7 +212,7 @@ def test_overhead_surface_blocks_only_over_unseen_ground():
     the 1.8 m ceiling) does not block where the ground under it was seen, and still blocks
     where it was not (the ground under it might hold anything). `overhead_clear_m=None` keeps
     the old rule: every surface up to 1.8 m blocks."""
-    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until session 27)
+    R = 0.3  # m: laid out for a 0.3 m map clearance (the default until 484c1ae)
     branch = box(0.0, 0.5, 1.0, 0.4, 0.2, z0=1.4)  # x [-0.5, 0.5], y [0.3, 0.7], 1.4-1.6 m up
     seen_all = plane_points(-4, 4, -2, 2)
     wm = walkable_map(seen_all, branch, PATH, WalkableConfig(robot_radius_m=R))

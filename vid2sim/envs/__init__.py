@@ -1,4 +1,4 @@
-"""Gymnasium navigation environments on registry scenes (issue 12).
+"""Gymnasium navigation environments on registry scenes.
 
 `gymnasium.make("vid2sim/PointNav-v0", registry=ROOT, scenes=SCENE_ID_OR_LIST_OR_"split:NAME")`
 and `vid2sim/SocialNav-v0` (pedestrians). The contract is in `vid2sim.envs.nav_env`.

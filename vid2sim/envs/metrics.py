@@ -11,7 +11,7 @@
   1 - (steps in collision) / (episode length).
 - SNS-proximity (documented second figure): as SNS, but a step also counts against the score
   when the robot is within `proximity_radius` (0.2 m, MetaUrban project page) of a pedestrian;
-  the MetaUrban authors state the paper's SNS was not the released one (metaurban issue 18).
+  the MetaUrban authors state the paper's SNS was not the released one (MetaUrban GitHub issue #18).
 """
 
 from __future__ import annotations

@@ -307,7 +307,7 @@ class NavEnv(gym.Env):
         return self.state.x, self.state.y, self.state.yaw
 
     def topdown_state(self) -> dict[str, Any]:
-        """What the recorder draws (TEAM.md interface); positions in metres, world frame."""
+        """What the recorder draws (`RecordEpisode`'s top-down state); positions in metres, world frame."""
         w = self.world
         return {"grid": w.assets.walkable.grid, "origin": w.assets.walkable.origin,
                 "resolution": w.assets.walkable.resolution,

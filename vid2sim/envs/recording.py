@@ -1,7 +1,7 @@
 """Episode recording: an MP4 of the robot's view beside a top-down map.
 
 `RecordEpisode(env, folder)` wraps any env whose `unwrapped.topdown_state()` returns the
-TEAM.md dict (`grid` [H, W] walkable 0/1 with rows along +y, `origin` (x, y) of cell [0, 0]'s
+top-down state dict (`grid` [H, W] walkable 0/1 with rows along +y, `origin` (x, y) of cell [0, 0]'s
 lower-left corner and `resolution` m/cell (defaults (0, 0) and 0.1), `robot_xy`, `robot_yaw`,
 `path` (taken), `planned_path`, `goal`, `obstacles` [N, 2], `pedestrians` [P, 2]). The view is
 `env.render()` when it returns an image, else the newest frame of `obs["image"]`. One file per

@@ -141,8 +141,8 @@ def render_batch(scenes: list, cameras: list[Camera], scene_ids: list[int],
     scenes[scene_ids[i]]. Returns rgb [N, H, W, 3], alpha [N, H, W], depth [N, H, W]
     (expected camera z, 0 where empty), all on the GPU.
 
-    NOT RUN YET: no GPU was lent while this was written (issue 8); covariance culling is
-    not applied on this path (gsplat has no max-norm 2D covariance cull)."""
+    Tested only where a GPU is present (tests/test_splats_cuda.py skips without CUDA); covariance
+    culling is not applied on this path (gsplat has no max-norm 2D covariance cull)."""
     gsplat = require_gsplat()
     if settings.cov_cull_alpha is not None:
         raise NotImplementedError("cuda render_batch: cov_cull_alpha is not supported")

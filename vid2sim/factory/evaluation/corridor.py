@@ -38,7 +38,8 @@ class CorridorConfig:
     area_spacing_m: float = 0.02  # surface sampling for the area inside the corridor
     # quality gate (a scene failing these is not registered as fine); looser than the
     # issue's targets (>= 99 % walkable, 1 component, < 0.05 m^2) so that a usable but
-    # imperfect scene is still kept, with its figures in the metrics. Measured (README):
+    # imperfect scene is still kept, with its figures in the metrics. Measured
+    # (docs/studies/physical_layer.md):
     # GoPro 47.8 % / 3 / 2.11 m^2 before, 94.8 % / 1 / 0.02 after; demo street 78.8 % before,
     # 89.2 % / 1 / 0.0 after; with the physical layer (trimmed mesh, exact inflation) GoPro
     # 83.3 % / 1 / 0.044, demo 93.5 % / 1 / 0.0

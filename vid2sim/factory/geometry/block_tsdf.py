@@ -1,7 +1,7 @@
 """TSDF fusion on open3d's sparse voxel-block grid (tensor API), with free-space fill-in.
 
 The meshing stage's collision-volume engine (`MeshingConfig.collision_tsdf = "blocks"`, the
-default since session 27). Reads depth views (camera z in metres, 0 = not fused); writes
+default since 484c1ae). Reads depth views (camera z in metres, 0 = not fused); writes
 nothing: `mesh()` returns a legacy open3d TriangleMesh like the ScalableTSDFVolume it replaces.
 
 Fill-in (`fill_free`). Marching cubes makes no surface in a cube with an unobserved corner.

@@ -28,7 +28,8 @@ from vid2sim.factory.geometry.raycast import pixel_rays_cam
 @dataclass(frozen=True)
 class CarveConfig:
     # ray (space) carving: off by default, it did not pay on the GoPro clip (its phantom
-    # obstacles are consistent splats, which every view's depth stops at; README ablation)
+    # obstacles are consistent splats, which every view's depth stops at;
+    # docs/studies/physical_layer.md)
     rays: bool = False
     body: bool = True  # walker's body carving
     min_hit_views: int = 1  # 2+ = multi-view consistency: a depth voxel seen by that many views

@@ -6,7 +6,8 @@ vertex lies clearly above the local ground; `lump_tops` marks what trimming the 
 leaves of a noise lump that peaks just above the step; `carved_pieces` marks the small pieces
 that the free-space carving cut (part of their depth lay in space proven empty);
 `small_pieces` the pieces with little surface. The walkable stage (`walkable.physical_layer`) drops
-floaters when `WalkableConfig.floater_max_area_m2` > 0 (off by default; README, issue 14),
+floaters when `WalkableConfig.floater_max_area_m2` > 0 (off by default;
+docs/studies/physical_layer.md),
 and lump tops, carved pieces and small pieces after the trim (on).
 """
 

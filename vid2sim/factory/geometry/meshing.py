@@ -80,9 +80,10 @@ class MeshingError(StageError):
 class MeshingConfig:
     voxel_m: float = 0.1  # paper: TSDF voxel size 0.1 (metric units here)
     # SDF truncation = trunc_voxels * voxel_m. 3.5 (0.35 m; was 4): a narrower band smears less
-    # splat depth noise into the free space beside surfaces. Over five splat builds (README,
-    # session 23) the walked path gained on three and lost on one (100 -> 98.2 %), accuracy
-    # median 0.051 -> 0.049 m on the demo street, completeness -0.5 to -0.7 points
+    # splat depth noise into the free space beside surfaces. Over five splat builds
+    # (docs/studies/physical_layer.md) the walked path gained on three and lost on one
+    # (100 -> 98.2 %), accuracy median 0.051 -> 0.049 m on the demo street, completeness -0.5
+    # to -0.7 points
     trunc_voxels: float = 3.5
     depth_min_m: float = 0.1
     # splat depth error grows with distance (median depth of the demo splats: 3-5 % relative,
@@ -113,19 +114,19 @@ class MeshingConfig:
     # discontinuity larger than edge_rel x their depth are not fused (silhouette fattening of
     # splat depth); 0 disables. At 0.1 the demo street's path goes 93.5 -> 97.1 % walkable,
     # the GoPro corridor 0.044 -> 0 m^2 (path 83.3 -> 92.8 %), accuracy median 0.053 -> 0.049 m,
-    # at 0.6 points of completeness (86.8 -> 86.2 %, on car and facade silhouettes; README)
+    # at 0.6 points of completeness (86.8 -> 86.2 %, on car and facade silhouettes)
     edge_rel: float = 0.1
     edge_px: int = 1
     # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
     carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
     # TSDF engine of the collision volume: "blocks" (`block_tsdf`: tensor VoxelBlockGrid, plus
     # free-space fill-in of unobserved voxels that fill_free_views views see through; 0 = no
-    # fill-in) or "legacy" (open3d ScalableTSDFVolume, the default until session 26). The
+    # fill-in) or "legacy" (open3d ScalableTSDFVolume, the default until 484c1ae). The
     # visual volume (whose ground vertices feed the walkable map) stays legacy. Demo street:
     # completeness 87.1 -> 89.2 % (blocks) -> 90.4 % (+ fill-in), poles 70 -> 98 -> 99.5 %, path
     # 99.3 -> 100 %. On the GoPro clip the more complete mesh holds ornamental grass 0.25-0.3 m
     # beside the walk's end, which a map cleared for 0.3 m blocked (path 95.1 %); the map now
-    # clears the walker's body radius (`WalkableConfig.robot_radius_m`; README, session 27)
+    # clears the walker's body radius (`WalkableConfig.robot_radius_m`; docs/studies/physical_layer.md)
     collision_tsdf: str = "blocks"
     fill_free_views: int = 1
 

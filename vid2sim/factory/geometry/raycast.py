@@ -105,7 +105,7 @@ class RaycastRenderer:
 
 def render_depth_normals(mesh: MeshLike, K: np.ndarray, cam_to_world: np.ndarray,
                          width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    """One-shot helper: (depth [H, W] float32 camera z, normal_cam [H, W, 3] float32)."""
+    """One-shot convenience function: (depth [H, W] float32 camera z, normal_cam [H, W, 3] float32)."""
     out = RaycastRenderer(mesh).render(K, cam_to_world, width, height)
     return out.depth, out.normal_cam
 

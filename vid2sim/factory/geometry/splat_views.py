@@ -29,7 +29,7 @@ class SplatViewConfig:
     min_alpha: float = 0.5  # pixels with lower accumulated opacity are invalid
     every: int = 2  # use every n-th training frame
     backend: str = "auto"
-    # floater controls for meshing depth (README, corridor ablation): the paper's screen-space
+    # floater controls for meshing depth (docs/studies/physical_layer.md): the paper's screen-space
     # covariance culling drops splats whose 2D covariance exceeds alpha * H * W (GoPro: path
     # walkable 80 -> 95 %); splats below min_opacity are not rendered (did not add to it)
     min_opacity: float = 0.0

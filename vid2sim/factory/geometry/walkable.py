@@ -94,11 +94,11 @@ class WalkableError(StageError):
 class WalkableConfig:
     resolution_m: float = 0.1
     # the clearance a walkable cell's centre keeps from collision surface and kerbs: the
-    # walker's body radius, what the video proves free along the walk (session 27; was the
+    # walker's body radius, what the video proves free along the walk (since 484c1ae; was the
     # robot's 0.3 m half-width). At 0.3 m the corridor check failed true geometry the walker
     # passed within 0.25-0.3 m of: ornamental grass on the GoPro clip that the body carving
     # shows the walker brushing through, and a GT obstacle 0.263 m from the walk of synthetic
-    # street seed 5 (README, session 27). Environments add their robot's own clearance on top
+    # street seed 5 (docs/studies/physical_layer.md). Environments add their robot's own clearance on top
     # (`EpisodeConfig.clearance` is counted from the surface minus this, read back from the
     # bundle by `envs.scenes.walkable_inflation`), so their planners keep the same distance
     robot_radius_m: float = BODY_RADIUS_M
@@ -109,7 +109,7 @@ class WalkableConfig:
     # overhead: surface higher than this above the local ground (the envs' box top 0.75 m plus
     # 0.45 m for ground-height noise) blocks the map only where the ground beneath it was not
     # seen. Where the video saw ground under a canopy or branch, the robot drives under it; where
-    # it did not (foliage on a planter hides the planter's far side), it still blocks. Session 21:
+    # it did not (foliage on a planter hides the planter's far side), it still blocks. Measured:
     # a canopy sagging to 1.8 m 0.13 m beside the GoPro walk split the map (path 93.8 % -> 97.4 %,
     # 1 component); demo splat build unchanged; exact-GT street IoU 0.904 -> 0.897 (0.26 m^2 opened
     # beside a planter whose foliage was the only fused surface there). None: every surface up to
@@ -174,7 +174,7 @@ class WalkableConfig:
     # (cell centre within robot_radius_m of a surface sample) runs on these finer cells. At
     # 0.1 m a cell centre lies up to 0.07 m from a point in the cell, so a walked position
     # 0.345 m from a surface fell in a blocked cell (demo street path 97.1 -> 98.9 % at 0.05).
-    # Session 22, 0.05 -> 0.025 (a centre within 0.018 m of any point in its cell): demo path
+    # Then 0.05 -> 0.025 (a centre within 0.018 m of any point in its cell): demo path
     # 98.9 -> 99.3 %, GoPro 97.8 -> 98.2 %; +0.1 CPU-s per clip; the envs' planner searches the
     # finer grid in ~5 ms per distance field (demo street, 300 x 908 cells)
     map_resolution_m: float = 0.025
@@ -185,7 +185,7 @@ class WalkableConfig:
     # the local ground (nothing holds it up) and whose area is below floater_max_area_m2 is
     # dropped before trimming. Measured on the fast-preset factory scenes (pieces joined at
     # 0.05 m): what stands on the ground reaches -0.3..+0.09 m (GoPro, 3 sigma = 0.16 m; demo
-    # <= 0); the GoPro pavement lump of issue 14 was 0.2-0.45 m up, 0.22 m^2; on the demo the
+    # <= 0); an earlier GoPro pavement lump was 0.2-0.45 m up, 0.22 m^2; on the demo the
     # unsupported pieces > 0.14 m from any GT surface are 0.2-0.29 m^2 (dropped at 0.4), the
     # smallest real unsupported piece (car body, 0.7 m up) 0.50 m^2, cars 0.8-1.9, canopies
     # 1-40 m^2. Off (0) by default: on the rebuilt scenes no floater blocks the walk (path
@@ -201,7 +201,7 @@ class WalkableConfig:
     # dropped with the faces below the step. The trim judges faces one by one, so a noise lump
     # on the pavement (the splats' textureless-ground floaters, 0.2-0.35 m up on the GoPro clip)
     # that peaks just above the step left 1-4 face slivers at the step height (0.31-0.33 m,
-    # step 0.308) 0.24-0.30 m beside the walk, inside the robot radius (README, session 22).
+    # step 0.308) 0.24-0.30 m beside the walk, inside the robot radius (docs/studies/physical_layer.md).
     # Scaled by the noise like the step: on clean ground (noise ~0) a 0.2 m box the trim cut
     # stays an obstacle. 0 disables
     lump_noise_k: float = 2.0
@@ -210,7 +210,7 @@ class WalkableConfig:
     # (`carved_points`, at the meshing render scale; by default those inside the walker's swept
     # body) within cut_near_m is dropped: the body carving removes the part of a splat phantom
     # that stood in the walker's way and leaves the rest 0.22-0.3 m beside the walk, inside
-    # the robot's radius. Session 24, 320 px splats of the GoPro clip: two pavement phantoms of
+    # the robot's radius. On 320 px splats of the GoPro clip: two pavement phantoms of
     # 0.1-0.5 m^2 with 800-1500 carved points each (path walkable 80.7 -> 99.6 %); the demo
     # street and the 160 px builds lose nothing to it. 0 disables
     cut_max_area_m2: float = 0.5

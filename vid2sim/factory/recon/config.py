@@ -37,7 +37,8 @@ class DepthPriorConfig:
     # (relative) of that view's own confident prior depth. Plane-sweep NCC is confidently wrong
     # on uniform surfaces and under forward motion: on the demo street 18 % of the confident
     # prior pixels were > 20 % off (the first frames' median 42 %, a parked car placed 1.5-5x too
-    # far, which pulled the splats 20 % too far); with the check 2.9 %, keeping 76 % (README).
+    # far, which pulled the splats 20 % too far); with the check 2.9 %, keeping 76 %
+    # (docs/studies/physical_layer.md).
     # 0 disables
     consistency_rel: float = 0.05
     consistency_views: int = 3
@@ -136,12 +137,12 @@ class ReconConfig:
 def fast() -> ReconConfig:
     """Minutes on 2 CPU cores: ~1/3 resolution, 2k iterations, 150k Gaussian cap.
 
-    320 px wide (was 160 until session 24): on the demo street's splats the collision mesh's
+    320 px wide (was 160 until f666213): on the demo street's splats the collision mesh's
     accuracy median goes 0.049 -> 0.038 m, completeness 86.1 -> 87.7 % and the walkable IoU
-    0.809 -> 0.847, at about twice the training time (README, issue 14; the GoPro clip's path
+    0.809 -> 0.847, at about twice the training time (docs/studies/physical_layer.md; the GoPro clip's path
     holds with the walkable stage's carved-piece rule); 240 px gave less, 3000 iterations at
     160 px nothing. Not a win on every street: a second 854 px street trades accuracy for
-    completeness, a 4 s 640 px clip loses on every figure (README, session 24).
+    completeness, a 4 s 640 px clip loses on every figure.
     """
     return ReconConfig(
         preset="fast", iterations=2000, max_width=320, sh_degree=2, sh_increase_every=500,

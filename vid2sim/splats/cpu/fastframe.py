@@ -1,4 +1,4 @@
-"""Approximate env frames at RL rates (issue 8): one 128x72 frame in ~2 ms of one core.
+"""Approximate env frames at RL rates: one 128x72 frame in ~2 ms of one core.
 
 NOT exact (the exact env path is `frame.py`); what is traded, each measured as PSNR/SSIM
 against the exact render by benchmarks/env_render.py:

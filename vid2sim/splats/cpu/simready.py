@@ -1,6 +1,6 @@
 """Sim-ready splats: the scene as the robot's 128x72 camera needs it, made once at load.
 
-Choice (issue 8): made when a scene is loaded for simulation, not stored in the bundle; the
+Choice: made when a scene is loaded for simulation, not stored in the bundle; the
 bundle keeps the full splats for viewing. The envs pass robot cameras sampled over the
 walkable map (`robot_cameras`), and `sim_ready` keeps the splats that carry the image there:
 
