@@ -8,7 +8,7 @@ of N synthetic clips from a separate driver process, and prints the wall time of
 What it can show: the work spreads over nodes through the object store, and the cost of the
 store round trips. What it cannot: a speed-up from more hardware, since both "nodes" share this
 machine's cores. Then a paper estimate for 1,000 ten-second clips on a named cloud instance from
-the per-stage times measured on this machine (README, GoPro clip, fast preset).
+the per-stage times of the GoPro clip, fast preset (docs/results.md).
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
-# Measured per 10.5 s GoPro clip, fast preset, 2 vCPUs (README, benchmarks/pipeline.py gopro).
+# Measured per 10.5 s GoPro clip, fast preset at 160 px, 2 vCPUs (benchmarks/pipeline.py gopro).
 STAGE_SECONDS = {"decode": 12, "masks": 4, "sfm": 59, "metric": 0.7, "recon": 132, "meshing": 16}
 INSTANCE = ("c6i.4xlarge", 16, 0.68)  # name, vCPUs, on-demand USD/hour (us-east-1)
 
