@@ -137,10 +137,10 @@ def git_state(repo: Path = REPO) -> dict:
             "branch": git("rev-parse", "--abbrev-ref", "HEAD") if commit else None}
 
 
-def versions() -> dict:
-    """python and the installed versions of LIBRARIES (read from package metadata: no imports)."""
+def versions(extra: tuple[str, ...] = ()) -> dict:
+    """python and the installed versions of LIBRARIES + extra (package metadata: no imports)."""
     out = {"python": f"{platform.python_implementation()} {platform.python_version()}"}
-    for dist in LIBRARIES:
+    for dist in (*LIBRARIES, *extra):
         try:
             out[dist] = importlib.metadata.version(dist)
         except importlib.metadata.PackageNotFoundError:
@@ -209,12 +209,13 @@ class Run:
     benchmark: the script's name (its file stem). args: the parsed argparse namespace (its
     `results` attribute, when there, is the output path; all of it is stored). results:
     output path (overrides args.results). config: run-level settings stored as they are.
+    libraries: distributions whose versions matter beyond LIBRARIES (e.g. ("duckdb",)).
     """
 
     def __init__(self, benchmark: str, args: Optional[argparse.Namespace] = None, *,
                  results: Union[str, Path, None] = None, config: Optional[dict] = None,
                  argv: Optional[list[str]] = None, description: Optional[str] = None,
-                 quiet: bool = False) -> None:
+                 libraries: tuple[str, ...] = (), quiet: bool = False) -> None:
         self.benchmark = benchmark
         self.args = {k: v for k, v in vars(args).items() if k != "results"} if args is not None else {}
         self.results_arg = results or (getattr(args, "results", None) if args is not None else None)
@@ -222,6 +223,7 @@ class Run:
         self.argv = list(sys.argv if argv is None else argv)
         main_doc = getattr(sys.modules.get("__main__"), "__doc__", None) or ""
         self.description = description or first_paragraph(main_doc)
+        self.libraries = tuple(libraries)
         self.quiet = quiet
         self.rows: list[dict] = []
         self.notes: list[str] = []
@@ -268,7 +270,7 @@ class Run:
         env = {k: v for k, v in sorted(os.environ.items()) if k.startswith(ENV_PREFIXES) and k != RESULTS_ENV}
         self.info = {"command": command_line(self.argv), "argv": self.argv, "cwd": os.getcwd(), "env": env,
                      "hardware": hardware(), "load": {"start": load_avg()}, "git": git_state(),
-                     "versions": versions()}
+                     "versions": versions(self.libraries)}
         if not self.quiet:
             print(self.header_line(), flush=True)
         return self
@@ -310,7 +312,8 @@ class Run:
         self.path = path
         if not self.quiet:
             load = data["load"]["end"]
-            print(f"# {self.benchmark}: {len(self.rows)} rows -> {_shown(path)} "
+            what = "" if status == "ok" else f" ({status[:80]})"
+            print(f"# {self.benchmark}{what}: {len(self.rows)} rows -> {_shown(path)} "
                   f"({data['duration_s']:.0f} s, load at end {load[0]:.2f})", flush=True)
         return path
 

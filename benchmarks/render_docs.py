@@ -42,7 +42,7 @@ def fmt(v: Any) -> str:
             return f"{v:.1f}"
         if a >= 1:
             return f"{v:.2f}"
-        return f"{v:.4g}"
+        return f"{v:.3g}"
     if isinstance(v, (list, dict)):
         return cell(str(v))
     return cell(str(v))
