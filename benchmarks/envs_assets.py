@@ -1,20 +1,19 @@
 """Per-step cost of the env's asset side at 128x72: obstacles, pedestrians, augmentation,
 compositing and the recorder's frame, in ms of process CPU time (wall time is printed too).
 
-Usage: .venv/bin/python benchmarks/envs_assets.py [--people 5] [--reps 300]
+Usage: .venv/bin/python benchmarks/envs_assets.py [--people 5] [--reps 300] [--quick]
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 import time
 from typing import Callable
 
 import numpy as np
 import pybullet as pb
 
-from common import hardware_line
+from common import Run, add_run_args
 from vid2sim.envs.augment import AugmentConfig, Augmenter
 from vid2sim.envs.compositing import composite
 from vid2sim.envs.obstacles import OBSTACLE_KINDS, ObstacleSet, Placement, make_obstacle
@@ -48,13 +47,21 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--people", type=int, default=5)
     ap.add_argument("--reps", type=int, default=300)
+    ap.add_argument("--quick", action="store_true", help="60 calls per part (smoke run)")
+    add_run_args(ap)
     args = ap.parse_args()
+    reps = 60 if args.quick and args.reps == 300 else args.reps
+    with Run("envs_assets", args) as run:
+        measure(run, args.people, reps)
+
+
+def measure(run: Run, people: int, reps: int) -> None:
     rng = np.random.default_rng(0)
     cid = pb.connect(pb.DIRECT)
     grid = WalkableGrid(np.ones((200, 300), np.uint8), np.zeros(2), 0.1)  # 30 x 20 m plaza
     obstacles = ObstacleSet(cid, [Placement(make_obstacle(k, rng), (4.0 + 1.5 * i, 10.0 + 0.5 * i))
                                   for i, k in enumerate(OBSTACLE_KINDS)])
-    crowd = Crowd(GridPlanner(grid), args.people, rng, cid)
+    crowd = Crowd(GridPlanner(grid), people, rng, cid)
     aug = Augmenter(AugmentConfig(enabled=True, fog_prob=1.0, rain_prob=1.0))
     aug.reset(rng)
     w2c = camera(1.0, 10.0, 0.0)
@@ -67,17 +74,16 @@ def main() -> None:
     parts = {
         f"obstacles.draw ({len(obstacles.placements)} obstacles, {len(obstacles.mesh_arrays()[1])} faces)":
             lambda: obstacles.draw(K, w2c, W, H),
-        f"crowd.step ({args.people} people, incl. re-planning)": lambda: crowd.step(0.2, (1.0, 10.0)),
-        f"crowd.draw ({args.people} people, {len(crowd.mesh_arrays()[1])} faces)":
+        f"crowd.step ({people} people, incl. re-planning)": lambda: crowd.step(0.2, (1.0, 10.0)),
+        f"crowd.draw ({people} people, {len(crowd.mesh_arrays()[1])} faces)":
             lambda: crowd.draw(K, w2c, W, H),
         "composite (one layer)": lambda: composite(*base, *layer),
         "augment.apply (exposure, tint, fog, rain)": lambda: aug.apply(*base),
         "recorder frame (map + view, 800x288)": lambda: side_by_side(base[0], tmap.draw(state)),
     }
-    print(hardware_line())
-    print(f"command: {' '.join(['python'] + sys.argv)}")
     for name, fn in parts.items():
-        cpu, wall = timed(fn, args.reps)
+        cpu, wall = timed(fn, reps)
+        run.record_all(name, {"cpu_ms": cpu, "wall_ms": wall}, "ms/call", {"reps": reps, "image": f"{W}x{H}"})
         print(f"{name}: {cpu:.3f} ms CPU, {wall:.3f} ms wall")
     pb.disconnect(cid)
 

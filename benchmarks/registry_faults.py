@@ -8,6 +8,7 @@ races real committers, feeds hostile SQL or input), runs the commands a user wou
 (the read, then `gc --grace-seconds 0`), and counts what was destroyed: scenes whose artifacts
 are no longer all present and intact, and blobs of the original registry that are gone or corrupt.
 Prints a table: case, what the user sees (exit code + first line), scenes lost, blobs lost.
+--quick: a registry of 30 scenes (smoke run).
 """
 
 from __future__ import annotations
@@ -235,18 +236,26 @@ CASES: dict[str, Callable[[Path, dict], str]] = {
 
 
 def main() -> None:
-    from common import hardware_line
+    from common import Run, add_run_args
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenes", type=int, default=300)
     ap.add_argument("--root", type=Path, default=None, help="work folder (default: a temp dir)")
+    ap.add_argument("--quick", action="store_true", help="a registry of 30 scenes")
+    add_run_args(ap)
     args = ap.parse_args()
+    if args.quick and args.scenes == 300:
+        args.scenes = 30
+    with Run("registry_faults", args) as run:
+        bench(run, args)
+
+
+def bench(run, args: argparse.Namespace) -> None:
     work = Path(args.root or tempfile.mkdtemp(prefix="vid2sim-faults-"))
-    print(f"hardware: {hardware_line()}")
-    print(f"command: {' '.join([Path(sys.executable).name, *sys.argv])}")
     t = time.perf_counter()
     original = build(work / "base", work / "bundles", args.scenes)
-    print(f"built a registry of {len(original)} scenes in {time.perf_counter() - t:.0f} s; $W = {work}\n")
+    secs = run.record(f"build a registry of {args.scenes} scenes", "seconds", time.perf_counter() - t, "s")
+    print(f"built a registry of {len(original)} scenes in {secs:.0f} s; $W = {work}\n")
     print("| case | what the user sees | scenes lost | blobs lost | s |")
     print("|---|---|---|---|---|")
     for i, (name, fn) in enumerate(CASES.items()):
@@ -256,11 +265,13 @@ def main() -> None:
         seen = fn(root, {"original": original, "bundles": work / "bundles", "n": args.scenes})
         seen = seen.replace(str(work), "$W")
         scenes, blobs = damage(original, root)
-        print(f"| {name} | {seen.replace('|', '/')} | {scenes} | {blobs} | {time.perf_counter() - t:.1f} |",
+        secs = time.perf_counter() - t
+        run.record_all(name, {"what the user sees": seen, "scenes lost": scenes, "blobs lost": blobs,
+                              "seconds": secs}, {"seconds": "s"}, {"scenes": args.scenes})
+        print(f"| {name} | {seen.replace('|', '/')} | {scenes} | {blobs} | {secs:.1f} |",
               flush=True)
     if args.root is None:
         shutil.rmtree(work, ignore_errors=True)
-
 
 if __name__ == "__main__":
     main()

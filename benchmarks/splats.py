@@ -18,14 +18,13 @@ import os
 os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")  # before torch / numba load OpenMP
 
 import argparse  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
 import time  # noqa: E402
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
+from common import Run, add_run_args  # noqa: E402  (benchmarks/common.py)
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig, rasterize  # noqa: E402
 from vid2sim.splats.cpu.synthetic import (  # noqa: E402
     front_camera, random_blob_scene, robot_camera, street_scene)
@@ -33,16 +32,7 @@ from vid2sim.splats.reference import rasterize as ref_rasterize  # noqa: E402
 from vid2sim.splats.types import RasterSettings  # noqa: E402
 
 ALL = numba.config.NUMBA_NUM_THREADS
-
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+FPS = {"fps_1_thread": "frames/s", "fps_per_cpu_s_1_thread": "frames/CPU-s", "fps_all_threads": "frames/s"}
 
 
 def timeit(fn, min_reps: int = 3, min_time: float = 0.5) -> tuple[float, float]:
@@ -87,7 +77,7 @@ def params(model):
     return model.means, model.quats, model.log_scales, model.opacity_logits, model.sh
 
 
-def forward_table(sizes, resolutions) -> None:
+def forward_table(run: Run, sizes, resolutions) -> None:
     print("\n## forward (rasterize, no grad), random scene, SH degree 3")
     print(f"{'N':>7} {'res':>8} {'1 thread fps':>13} {'(cpu-time fps)':>15} {f'{ALL} threads fps':>14} {'visible':>8}")
     for n in sizes:
@@ -95,13 +85,16 @@ def forward_table(sizes, resolutions) -> None:
         for w, h in resolutions:
             cam = front_camera(w, h)
             st = RasterSettings(w, h)
-            run = lambda: rasterize(*params(model), cam, st)  # noqa: E731
+            go = lambda: rasterize(*params(model), cam, st)  # noqa: E731
             with torch.no_grad():
                 numba.set_num_threads(1)
-                w1, c1 = timeit(run)
+                w1, c1 = timeit(go)
                 numba.set_num_threads(ALL)
-                wa, _ = timeit(run)
-                vis = int((run().radii > 0).sum())
+                wa, _ = timeit(go)
+                vis = int((go().radii > 0).sum())
+            run.record_all(f"forward {n} splats {w}x{h}", {"fps_1_thread": 1 / w1, "fps_per_cpu_s_1_thread": 1 / c1,
+                                                          "fps_all_threads": 1 / wa, "visible": vis},
+                           FPS, {"threads": ALL, "sh_degree": 3, "scene": "random blobs"})
             print(f"{n:>7} {w:>4}x{h:<3} {1 / w1:>13.1f} {1 / c1:>15.1f} {1 / wa:>14.1f} {vis:>8}")
 
 
@@ -118,26 +111,30 @@ def fwd_bwd(fn, ps, cam, st):
     loss.backward()
 
 
-def backward_table(n: int, res: tuple[int, int]) -> dict:
+def backward_table(run: Run, n: int, res: tuple[int, int]) -> dict:
     w, h = res
     model = random_blob_scene(n, seed=2)
     cam, st = front_camera(w, h), RasterSettings(w, h)
     ps = leaf_params(model)
     print(f"\n## forward+backward (loss on rgb, depth, alpha; absgrad on), {n} splats, {w}x{h}")
     res_ms = {}
+    case = f"forward+backward {n} splats {w}x{h}"
     for threads in (1, ALL):
         numba.set_num_threads(threads)
         wall, cpu = timeit(lambda: fwd_bwd(rasterize, ps, cam, st))
         res_ms[threads] = wall * 1e3
+        which = "1_thread" if threads == 1 else "all_threads"
+        run.record_all(case, {f"wall_ms_{which}": wall * 1e3, f"cpu_ms_{which}": cpu * 1e3}, "ms", {"threads": ALL})
         print(f"  {threads} thread(s): {wall * 1e3:8.1f} ms wall   {cpu * 1e3:8.1f} ms cpu-time")
     numba.set_num_threads(ALL)
     with torch.no_grad():
         fw, _ = timeit(lambda: rasterize(*ps, cam, st))
+    run.record(case, "forward_only_ms_all_threads", fw * 1e3, "ms", {"threads": ALL})
     print(f"  forward only ({ALL} threads): {fw * 1e3:.1f} ms")
     return res_ms
 
 
-def ratio_table(n: int, res: tuple[int, int]) -> float:
+def ratio_table(run: Run, n: int, res: tuple[int, int]) -> float:
     w, h = res
     model = random_blob_scene(n, seed=3)
     cam, st = front_camera(w, h), RasterSettings(w, h)
@@ -146,6 +143,11 @@ def ratio_table(n: int, res: tuple[int, int]) -> float:
     ps = leaf_params(model)
     tc, cc = timeit(lambda: fwd_bwd(rasterize, ps, cam, st))
     tt, ct = timeit(lambda: fwd_bwd(ref_rasterize, ps, cam, st), min_reps=2, min_time=0.0)
+    run.record_all(f"cpu vs torch reference, forward+backward {n} splats {w}x{h}",
+                   {"torch_wall_ms": tt * 1e3, "cpu_wall_ms": tc * 1e3, "speedup_wall": tt / tc,
+                    "torch_cpu_time_ms": ct * 1e3, "cpu_cpu_time_ms": cc * 1e3, "speedup_cpu_time": ct / cc},
+                   {"torch_wall_ms": "ms", "cpu_wall_ms": "ms", "speedup_wall": "x", "torch_cpu_time_ms": "ms",
+                    "cpu_cpu_time_ms": "ms", "speedup_cpu_time": "x"}, {"threads": ALL})
     print(f"  wall: torch {tt * 1e3:.0f} ms   cpu {tc * 1e3:.1f} ms   speed-up x{tt / tc:.1f}")
     print(f"  cpu-time: torch {ct * 1e3:.0f} ms   cpu {cc * 1e3:.1f} ms   speed-up x{ct / cc:.1f}")
     return ct / cc
@@ -156,7 +158,7 @@ def psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float("inf") if mse == 0 else 10 * float(torch.log10(torch.tensor(1.0 / mse)))
 
 
-def static_table(n: int, res: tuple[int, int], quick: bool) -> dict:
+def static_table(run: Run, n: int, res: tuple[int, int], quick: bool) -> dict:
     """Exact and env-LOD StaticScene over 6 robot poses; returns {label: fps/core (cpu-time)}."""
     w, h = res
     model = street_scene(n, seed=4)
@@ -184,15 +186,19 @@ def static_table(n: int, res: tuple[int, int], quick: bool) -> dict:
             exact_imgs.setdefault(sl, imgs)
             q = min(psnr(a, b) for a, b in zip(imgs, exact_imgs[sl]))
 
-            def run():
+            def go():
                 for c in cams:
                     scene.render(c, st)
             numba.set_num_threads(1)
-            w1, c1 = timeit(run)
+            w1, c1 = timeit(go)
             numba.set_num_threads(ALL)
-            wa, _ = timeit(run)
+            wa, _ = timeit(go)
             k = len(cams)
             results[f"{label} {sl}"] = k / c1
+            run.record_all(f"static {label}, {sl}, street {n} splats {w}x{h}",
+                           {"fps_1_thread": k / w1, "fps_per_cpu_s_1_thread": k / c1, "fps_all_threads": k / wa,
+                            "min_psnr_vs_exact_db": q, "build_s": build},
+                           {**FPS, "min_psnr_vs_exact_db": "dB", "build_s": "s"}, {"threads": ALL, "poses": k})
             print(f"  {label:<25} {sl:<12} 1 thread {k / w1:6.1f} fps (cpu-time {k / c1:6.1f} "
                   f"fps/core)  {ALL} threads {k / wa:6.1f} fps  min PSNR vs exact "
                   f"{q:5.1f} dB  (build {build:.1f} s)")
@@ -202,25 +208,38 @@ def static_table(n: int, res: tuple[int, int], quick: bool) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="smaller sizes (smoke run)")
+    add_run_args(ap)
     args = ap.parse_args()
-    print(f"# splat engine benchmark\ncommand: {' '.join([sys.executable] + sys.argv)}")
-    print(f"hardware: {cpu_model()}, {os.cpu_count()} logical cores; numba {numba.__version__} "
-          f"threads={ALL} layer={numba.config.THREADING_LAYER}; torch {torch.__version__} "
-          f"threads={torch.get_num_threads()}; OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
-    print(f"load average at start: {os.getloadavg()}")
-    probe0 = core_probe()
+    conf = {"numba_threads": ALL, "numba_threading_layer": numba.config.THREADING_LAYER,
+            "torch_threads": torch.get_num_threads(), "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY")}
+    with Run("splats", args, config=conf) as run:
+        bench(run, args.quick)
+
+
+def bench(run: Run, quick: bool) -> None:
+    print(f"numba threads={ALL} layer={numba.config.THREADING_LAYER}; torch threads={torch.get_num_threads()}; "
+          f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY')}")
+    probe0 = run.record("core probe", "speedup_at_start", core_probe(), "x", {"threads": ALL})
     print(f"core probe at start: {ALL}-thread speed-up of a pure compute kernel x{probe0:.2f}")
-    static = static_table(200_000, (128, 72), args.quick)
-    fb = backward_table(100_000, (320, 180))
-    ratio = ratio_table(20_000, (160, 90))
-    if not args.quick:  # the fwd+bwd target's work; the torch reference takes ~5 s CPU here
-        ratio = ratio_table(100_000, (320, 180))
-    sizes = (10_000, 100_000) if args.quick else (10_000, 100_000, 500_000)
-    forward_table(sizes, ((128, 72), (640, 360)))
+    static = static_table(run, 200_000, (128, 72), quick)
+    fb = backward_table(run, 100_000, (320, 180))
+    ratio = ratio_table(run, 20_000, (160, 90))
+    if not quick:  # the fwd+bwd target's work; the torch reference takes ~5 s CPU here
+        ratio = ratio_table(run, 100_000, (320, 180))
+    sizes = (10_000, 100_000) if quick else (10_000, 100_000, 500_000)
+    forward_table(run, sizes, ((128, 72), (640, 360)))
     print(f"\nload average at end: {os.getloadavg()}")
-    probe1 = core_probe()
+    probe1 = run.record("core probe", "speedup_at_end", core_probe(), "x", {"threads": ALL})
     print(f"core probe at end: x{probe1:.2f} (multi-thread rows are capped by this)")
     ex, lod = static["exact SH0"], static["LOD 0.25 px SH0"]
+    run.record_all("targets", {"static exact fps/core (>= 300)": ex, "static env LOD 0.25 px fps/core (>= 300)": lod,
+                               f"fwd+bwd 320x180 100k ms on {ALL} cores (<= 150)": fb[ALL],
+                               "fwd+bwd target met": fb[ALL] <= 150,
+                               "cpu vs torch CPU-time speed-up (>= 20)": ratio, "speed-up target met": ratio >= 20},
+                   {"static exact fps/core (>= 300)": "frames/CPU-s",
+                    "static env LOD 0.25 px fps/core (>= 300)": "frames/CPU-s",
+                    f"fwd+bwd 320x180 100k ms on {ALL} cores (<= 150)": "ms",
+                    "cpu vs torch CPU-time speed-up (>= 20)": "x"})
     print("\n## targets")
     print(f"  static 128x72 200k street >= 300 fps/core: exact {ex:.0f} ({ex / 300:.0%}), "
           f"env LOD 0.25 px {lod:.0f} ({lod / 300:.0%})")

@@ -1,6 +1,7 @@
 """Build a registry of synthetic-street ground-truth bundles (one per seed) for training figures.
 
     python benchmarks/street_registry.py ROOT --seeds 1 2 3 4 5 6 [--splats 20000]
+    python benchmarks/street_registry.py --quick    # one street into a temp folder, timed
 
 Each street is a distinct scene and its own source group, so the registry's split is leak-free.
 """
@@ -8,14 +9,20 @@ Each street is a distinct scene and its own source group, so the registry's spli
 from __future__ import annotations
 
 import argparse
+import shutil
+import tempfile
 import time
 from pathlib import Path
+from typing import Any, Optional
 
 from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
 from vid2sim.registry import Registry, RegistryNotFound
 
 
-def build(root: Path, seeds: list[int], n_splats: int = 20_000, preset_name: str = "test") -> Registry:
+def build(root: Path, seeds: list[int], n_splats: int = 20_000, preset_name: str = "test",
+          run: Optional[Any] = None) -> Registry:
+    """Adds the streets of `seeds` that the registry under root lacks; run: a benchmarks/common.py
+    Run recording each added street's seconds."""
     reg = Registry(root / "registry")
     try:
         have = {r.scene_id for r in reg.list()}
@@ -30,18 +37,34 @@ def build(root: Path, seeds: list[int], n_splats: int = 20_000, preset_name: str
         clip = render_video(scene, conf, root / "work" / f"clip{seed}")
         bundle = write_ground_truth_bundle(scene, clip, root / "work" / f"bundle{seed}", GTBundleConfig(n_splats=n_splats))
         reg.add(bundle)
-        print(f"seed {seed}: added in {time.perf_counter() - t0:.1f} s", flush=True)
+        seconds = time.perf_counter() - t0
+        if run is not None:
+            run.record(f"street seed {seed}, {preset_name} preset, {n_splats} splats", "build_and_add_s",
+                       seconds, "s", {"seed": seed, "preset": preset_name, "n_splats": n_splats})
+        print(f"seed {seed}: added in {seconds:.1f} s", flush=True)
     return reg
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("root", type=Path)
+    from common import Run, add_run_args  # benchmarks/common.py (build() is imported by tests too)
+
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("root", type=Path, nargs="?", default=None,
+                    help="registry + work folder (default: a temp folder, removed after)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
     ap.add_argument("--splats", type=int, default=20_000)
+    ap.add_argument("--quick", action="store_true", help="seed 1 only (smoke run)")
+    add_run_args(ap)
     args = ap.parse_args()
-    reg = build(args.root, args.seeds, args.splats)
-    print(sorted(r.scene_id for r in reg.list()))
+    seeds = [1] if args.quick and args.seeds == [1, 2, 3, 4, 5, 6] else args.seeds
+    root = args.root or Path(tempfile.mkdtemp(prefix="vid2sim-bench-streets-"))
+    try:
+        with Run("street_registry", args) as run:
+            reg = build(root, seeds, args.splats, run=run)
+            print(sorted(r.scene_id for r in reg.list()))
+    finally:
+        if args.root is None:
+            shutil.rmtree(root, ignore_errors=True)
 
 
 if __name__ == "__main__":
