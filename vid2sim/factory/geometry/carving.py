@@ -33,17 +33,17 @@ class CarveConfig:
     rays: bool = False
     body: bool = True  # walker's body carving
     min_hit_views: int = 1  # 2+ = multi-view consistency: a depth voxel seen by that many views
-    voxel_m: float = 0.1
+    voxel_m: float = 0.1  # m, edge of the carving grid's voxels
     pixel_stride: int = 2  # carve with every n-th pixel ray (rows and columns)
     near_m: float = 0.3  # rays are free from this distance ...
     margin_m: float = 0.2  # ... up to max(margin_m, margin_rel * depth) before the surface
     margin_rel: float = 0.05  # splat median depth: 3-5 % relative error
-    min_free_views: int = 3
-    free_ratio: float = 2.0
-    body_radius_m: float = BODY_RADIUS_M
-    body_bottom_m: float = 0.2
-    head_gap_m: float = 0.1
-    ground_z_m: float = 0.0
+    min_free_views: int = 3  # rays: a voxel is carved when at least this many views saw through it ...
+    free_ratio: float = 2.0  # ... and at least this many times as many as the views whose depth hit it
+    body_radius_m: float = BODY_RADIUS_M  # m, radius of the walker's body swept along the camera path
+    body_bottom_m: float = 0.2  # m above the ground where the swept body starts
+    head_gap_m: float = 0.1  # m, the swept body stops this far below the camera
+    ground_z_m: float = 0.0  # m, ground plane height of the metric frame
     pad_m: float = 1.0  # grid padding above the cameras and below the ground
 
 

@@ -37,7 +37,7 @@ class KerbConfig:
     # test and the growth up to obstacles); GoPro unchanged
     min_cells: int = 6
     upper: str = "median"  # inward level: "median" or "max" of its bins
-    min_drop_m: float = 0.08
+    min_drop_m: float = 0.08  # m, smallest height drop between the levels that counts as a kerb
     k: float = 4.0  # drop threshold = max(min_drop_m, k x profile noise)
     # the inward level may come from bins up to this much further in than upper_m, across
     # bins without ground (a planter or a parked car hides the sidewalk's outer part from a

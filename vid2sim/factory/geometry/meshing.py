@@ -78,25 +78,25 @@ class MeshingError(StageError):
 
 @dataclass
 class MeshingConfig:
-    voxel_m: float = 0.1  # paper: TSDF voxel size 0.1 (metric units here)
+    voxel_m: float = 0.1  # m, TSDF voxel size (the paper's 0.1)
     # SDF truncation = trunc_voxels * voxel_m. 3.5 (0.35 m; was 4): a narrower band smears less
     # splat depth noise into the free space beside surfaces. Over five splat builds
     # (docs/studies/physical_layer.md) the walked path gained on three and lost on one
     # (100 -> 98.2 %), accuracy median 0.051 -> 0.049 m on the demo street, completeness -0.5
     # to -0.7 points
     trunc_voxels: float = 3.5
-    depth_min_m: float = 0.1
+    depth_min_m: float = 0.1  # m, nearer splat depth is not fused
     # splat depth error grows with distance (median depth of the demo splats: 3-5 % relative,
     # plus floaters in the sky at 8-28 m); beyond ~8 m it exceeds the voxel size and the far
     # street and sky dominate the error (demo: accuracy 0.87 m at 20 m, 0.41 m at 12, 0.27 at 8)
-    depth_max_m: float = 8.0
+    depth_max_m: float = 8.0  # m, farther splat depth is not fused
     ground_normal_deg: float = 15.0  # paper's delta
     ground_band_m: float = 0.15  # |z| below this (ground plane z = 0) can be ground
-    ground_z_m: float = 0.0
+    ground_z_m: float = 0.0  # m, ground plane height of the metric frame
     # per-view ground height: the 30th percentile z of flat pixels within this distance of
     # ground_z_m (absorbs alignment error / gentle slopes); 0 disables
     ground_adapt_m: float = 0.3
-    ground_adapt_min_pixels: int = 200
+    ground_adapt_min_pixels: int = 200  # fewer flat pixels near the ground keep ground_z_m for that view
     face_ground_filter: bool = True  # also drop ground-like faces after extraction
     # face-level normals: PCA of the mesh vertices within this radius. Per-face normals of a
     # TSDF mesh of splat depth are noise at the voxel scale (sidewalk: median 28 deg off +z);
@@ -116,7 +116,7 @@ class MeshingConfig:
     # the GoPro corridor 0.044 -> 0 m^2 (path 83.3 -> 92.8 %), accuracy median 0.053 -> 0.049 m,
     # at 0.6 points of completeness (86.8 -> 86.2 %, on car and facade silhouettes)
     edge_rel: float = 0.1
-    edge_px: int = 1
+    edge_px: int = 1  # px, width of the depth-edge band not fused (see edge_rel)
     # free-space carving before fusion (vid2sim.factory.geometry.carving); None = fuse every pixel
     carve: Optional[CarveConfig] = field(default_factory=CarveConfig)
     # TSDF engine of the collision volume: "blocks" (`block_tsdf`: tensor VoxelBlockGrid, plus
@@ -128,7 +128,7 @@ class MeshingConfig:
     # beside the walk's end, which a map cleared for 0.3 m blocked (path 95.1 %); the map now
     # clears the walker's body radius (`WalkableConfig.robot_radius_m`; docs/studies/physical_layer.md)
     collision_tsdf: str = "blocks"
-    fill_free_views: int = 1
+    fill_free_views: int = 1  # blocks engine: views that must see through an unobserved voxel to free it (0: off)
 
 
 @dataclass

@@ -28,12 +28,12 @@ class SplatViewConfig:
     scale: float = 0.3  # fraction of the frame resolution to render at
     min_alpha: float = 0.5  # pixels with lower accumulated opacity are invalid
     every: int = 2  # use every n-th training frame
-    backend: str = "auto"
+    backend: str = "auto"  # renderer backend: "auto" | "torch" | "cpu" | "cuda"
     # floater controls for meshing depth (docs/studies/physical_layer.md): the paper's screen-space
     # covariance culling drops splats whose 2D covariance exceeds alpha * H * W (GoPro: path
     # walkable 80 -> 95 %); splats below min_opacity are not rendered (did not add to it)
-    min_opacity: float = 0.0
-    cov_cull_alpha: Optional[float] = 1e-3
+    min_opacity: float = 0.0  # splats below this opacity are not rendered for meshing (0: all are)
+    cov_cull_alpha: Optional[float] = 1e-3  # drop splats whose 2D covariance exceeds alpha x H x W (None: off)
 
 
 def meshing_model(model: GaussianModel, conf: SplatViewConfig) -> GaussianModel:

@@ -92,7 +92,7 @@ class WalkableError(StageError):
 
 @dataclass
 class WalkableConfig:
-    resolution_m: float = 0.1
+    resolution_m: float = 0.1  # m, cell size of the ground model (evidence, heights, noise, kerbs)
     # the clearance a walkable cell's centre keeps from collision surface and kerbs: the
     # walker's body radius, what the video proves free along the walk (since 484c1ae; was the
     # robot's 0.3 m half-width). At 0.3 m the corridor check failed true geometry the walker
@@ -105,7 +105,7 @@ class WalkableConfig:
     # the robot's step: collision geometry lower than this above the local ground is ground
     # (dropped from the collision mesh when trim_collision, else only ignored by the map)
     obstacle_min_z_m: float = 0.1
-    obstacle_max_z_m: float = 1.8
+    obstacle_max_z_m: float = 1.8  # m above the local ground: higher collision geometry does not block the map
     # overhead: surface higher than this above the local ground (the envs' box top 0.75 m plus
     # 0.45 m for ground-height noise) blocks the map only where the ground beneath it was not
     # seen. Where the video saw ground under a canopy or branch, the robot drives under it; where
@@ -115,7 +115,7 @@ class WalkableConfig:
     # beside a planter whose foliage was the only fused surface there). None: every surface up to
     # obstacle_max_z_m blocks
     overhead_clear_m: Optional[float] = 1.2
-    ground_z_m: float = 0.0
+    ground_z_m: float = 0.0  # m, ground plane height of the metric frame
     min_ground_hits: int = 1  # ground points needed to mark a cell as seen ground
     close_radius_m: float = 0.3  # morphological closing of the ground evidence
     path_radius_m: float = 0.3  # camera-path corridor counted as ground (0 disables)
@@ -129,28 +129,29 @@ class WalkableConfig:
     # figures); kerbs along the walk are found by `kerb` instead, from profiles aggregated
     # along it. 0.08 (the kerb test of exact depth) to find steps that cross the walk
     max_step_m: float = 0.0
-    step_window_m: float = 0.2
+    step_window_m: float = 0.2  # m, neighbourhood of the local step test
     # per-cell ground heights are median-filtered over this size before the step test and the
     # obstacle heights (reconstructed ground is +-0.1 m noisy per cell; a kerb edge survives a
     # median filter); 0 disables
     step_smooth_m: float = 0.5
-    # noise-adaptive thresholds: max_step_m and obstacle_min_z_m are raised to at least
-    # noise_k x the ground-height noise (robust sigma of per-cell heights around the smoothed
-    # map at the step scale; ~0 on exact depth, ~0.035 m on the splat demo); 0 disables
     # grow the ground over holes of the evidence that seen ground encloses (ground occluded
     # by obstacles, unseen patches on the walk): the fitted ground surface is continuous there;
     # obstacles and kerb steps still block it afterwards
     fill_holes: bool = True
-    # ... and over unseen cells that seen ground, obstacles and the ground beyond kerbs enclose
-    # together (behind a planter, between it and the kerb; past its far end): demo street
-    # walkable IoU 0.755 -> 0.766, GoPro 15.4 -> 16.6 m^2, nothing else moves
+    # grow the ground also over unseen cells that seen ground, obstacles and the ground beyond
+    # kerbs enclose together (behind a planter, between it and the kerb; past its far end): demo
+    # street walkable IoU 0.755 -> 0.766, GoPro 15.4 -> 16.6 m^2, nothing else moves
     fill_to_obstacles: bool = True
     # the walked corridor (camera path swept by this radius) is ground, at one height: the
     # median of the ground points inside it (robust to the per-cell noise, which is worst
     # there, right under the camera); it anchors the local ground heights, and kerb steps
     # inside it do not block (the walker went over them); 0 disables
     walked_radius_m: float = 0.25
-    noise_k: float = 6.0  # heavy-tailed: k = 3 / 4 / 6 gave walkable IoU 0.31 / 0.45 / 0.61 on the demo
+    # noise-adaptive thresholds: max_step_m and obstacle_min_z_m are raised to at least
+    # noise_k x the ground-height noise (robust sigma of per-cell heights around the smoothed
+    # map at the step scale; ~0 on exact depth, ~0.035 m on the splat demo); 0 disables. The
+    # noise is heavy-tailed: k = 3 / 4 / 6 gave walkable IoU 0.31 / 0.45 / 0.61 on the demo
+    noise_k: float = 6.0
     # drop the collision faces below the step (physical layer: map and mesh agree); False keeps
     # the fused mesh and only ignores low geometry in the map (the old, disagreeing behaviour)
     trim_collision: bool = True
@@ -162,7 +163,7 @@ class WalkableConfig:
     # when it lies in this band, or between body_bottom_m and obstacle_max_z_m above the local
     # ground; what lies below body_bottom_m on both counts cannot touch the box
     body_bottom_m: float = 0.15
-    body_top_m: float = 0.75
+    body_top_m: float = 0.75  # m above z = 0, top of the envs' robot box (see body_bottom_m)
     # inflate obstacles by exact distances from the cell centres to the surface samples (True)
     # rather than cell centre to occupied cell centre (up to 0.07 m off either way at 0.1 m)
     exact_inflation: bool = True
@@ -193,9 +194,9 @@ class WalkableConfig:
     # mesh holds up by nothing (a hedge top 1 m from the walk, grass heads): the
     # benchmarks/meshing.py variant "default + floaters dropped ..." measures it
     floater_max_area_m2: float = 0.0
-    floater_gap_m: float = 0.1
-    floater_noise_k: float = 3.0
-    floater_join_m: float = 0.05
+    floater_gap_m: float = 0.1  # m, a floater's lowest vertex lies more than this above the ground ...
+    floater_noise_k: float = 3.0  # ... and more than this x the ground noise
+    floater_join_m: float = 0.05  # m, collision pieces this close count as one piece for the floater rule
     # lump tops (`floaters.lump_tops`): a piece of the collision mesh that the trim cut and
     # whose highest point lies less than lump_noise_k x the ground noise above the step is
     # dropped with the faces below the step. The trim judges faces one by one, so a noise lump
@@ -214,8 +215,8 @@ class WalkableConfig:
     # 0.1-0.5 m^2 with 800-1500 carved points each (path walkable 80.7 -> 99.6 %); the demo
     # street and the 160 px builds lose nothing to it. 0 disables
     cut_max_area_m2: float = 0.5
-    cut_near_m: float = 0.15
-    cut_min_points: int = 10
+    cut_near_m: float = 0.15  # m, carved points this close to a piece count for it
+    cut_min_points: int = 10  # carved points a piece needs near it to be dropped
     # pieces left with less surface than this after the trim are dropped (`floaters.small_pieces`):
     # meshing removes fragments (under 40 faces, ~0.1 m^2 at 0.1 m voxels) before the trim, and
     # the trim makes new ones out of noise lumps (demo street, 320 px splats: a 13-face, 0.05 m^2

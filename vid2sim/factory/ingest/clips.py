@@ -24,8 +24,8 @@ DEFAULT_CLIP_SECONDS = 15.0
 
 @dataclass(frozen=True)
 class ClipsConfig:
-    clip_seconds: float = DEFAULT_CLIP_SECONDS
-    min_seconds: float = 4.0
+    clip_seconds: float = DEFAULT_CLIP_SECONDS  # s, length of the windows a long source is cut into
+    min_seconds: float = 4.0  # s, a shorter remainder joins the last window instead of making its own
 
 
 @dataclass(frozen=True)

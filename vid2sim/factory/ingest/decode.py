@@ -67,13 +67,13 @@ class DecodeConfig:
     blur_rel: float = 0.35  # drop if Laplacian variance < blur_rel * clip median
     dup_flow_px: float = 0.6  # drop if median flow to the last kept frame < this (output px)
     static_fraction: float = 0.9  # >= this fraction of duplicates -> static_camera
-    min_frames: int = 10
+    min_frames: int = 10  # fewer frames sampled or kept fails the clip (too_few_frames)
     black_level: float = 10.0  # frame mean grey level (0..255) below which it is "black"
     black_fraction: float = 0.95  # >= this fraction of black frames -> all_black
     analysis_width: int = 320  # width of the grey copy used for optical flow
-    jpeg_quality: int = 95
+    jpeg_quality: int = 95  # JPEG quality (0-100) of the written frames
     image_fps: float = 1.0  # nominal rate for image-folder timestamps (index / image_fps)
-    faces: FaceConfig = field(default_factory=FaceConfig)
+    faces: FaceConfig = field(default_factory=FaceConfig)  # face detection and blurring (anonymisation)
     workers: int = 2  # processes for face detection + JPEG writing (dlib is single-threaded)
 
 

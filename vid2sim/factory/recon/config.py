@@ -23,7 +23,7 @@ class DepthPriorConfig:
           "none" (plain 3DGS; geometry losses that need a prior are off).
     """
 
-    kind: str = "mvs"
+    kind: str = "mvs"  # "mvs" | "depth_anything" | "none" (see above)
     # --- mvs (plane sweep with NCC) ---
     neighbours: int = 4  # nearest frames (by index) on each side are candidates; best `neighbours` used
     num_planes: int = 48  # inverse-depth hypotheses between the near and far bound
@@ -41,39 +41,39 @@ class DepthPriorConfig:
     # (docs/studies/physical_layer.md).
     # 0 disables
     consistency_rel: float = 0.05
-    consistency_views: int = 3
-    min_consistent: int = 2
+    consistency_views: int = 3  # nearest training views on each side a prior depth is checked against
+    min_consistent: int = 2  # views (of those 2 x consistency_views) that must agree
     # --- depth_anything ---
     checkpoint: Optional[str] = None  # local folder with a transformers Depth-Anything-V2 model
-    device: str = "cpu"
+    device: str = "cpu"  # torch device the Depth-Anything model runs on
 
 
 @dataclass
 class DensifyConfig:
     """AbsGS densification (3DGS schedule; thresholds in 3DGS NDC units)."""
 
-    start_iter: int = 500
-    stop_iter: int = 15_000
-    every: int = 100
+    start_iter: int = 500  # first iteration that densifies
+    stop_iter: int = 15_000  # last densification (a final low-opacity prune runs here)
+    every: int = 100  # densify and prune every n iterations (opacity resets on multiples of opacity_reset_every)
     grad_threshold: float = 0.0002  # clone: mean plain 2D gradient norm
     absgrad_threshold: float = 0.0008  # split: mean absolute (AbsGS) 2D gradient norm
     percent_dense: float = 0.01  # clone if max scale <= this * extent, else split
-    opacity_reset_every: int = 3000
-    min_opacity: float = 0.005
+    opacity_reset_every: int = 3000  # iterations between opacity resets
+    min_opacity: float = 0.005  # Gaussians below this opacity are pruned
     max_screen_radius: float = 20.0  # pixels, at the training resolution (after first reset)
     max_world_scale: float = 0.1  # fraction of scene extent
-    max_gaussians: int = 1_000_000
+    max_gaussians: int = 1_000_000  # densification stops growing the model at this count
 
 
 @dataclass
 class LossConfig:
     """Loss weights (paper eq. 5: all geometry weights 1) and options."""
 
-    lambda_dssim: float = 0.2
-    w_depth: float = 1.0
-    w_normal: float = 1.0
-    w_geo: float = 1.0
-    w_scale: float = 1.0
+    lambda_dssim: float = 0.2  # RGB loss = (1 - lambda) L1 + lambda D-SSIM
+    w_depth: float = 1.0  # weight of the patch-NCC depth loss against the prior
+    w_normal: float = 1.0  # weight of the normal loss against the prior's PCA normals
+    w_geo: float = 1.0  # weight of the geometry-consistency loss (neighbouring normals agree where depth is smooth)
+    w_scale: float = 1.0  # weight of the flat-Gaussian (smallest scale) loss
     geometry: bool = True  # depth / normal / geo / scale losses on
     geometry_from_iter: int = 500  # paper: from iteration 500 to the end
     ncc_patch: int = 8  # K (patch K x K)
@@ -85,29 +85,29 @@ class LossConfig:
 class LRConfig:
     """3DGS learning rates; means are scaled by the scene extent and decay exponentially."""
 
-    means: float = 1.6e-4
-    means_final: float = 1.6e-6
-    sh0: float = 2.5e-3
-    shN: float = 2.5e-3 / 20
-    opacity: float = 0.05
-    scales: float = 5e-3
-    quats: float = 1e-3
+    means: float = 1.6e-4  # positions at the start (x scene extent)
+    means_final: float = 1.6e-6  # positions at the last iteration (x scene extent)
+    sh0: float = 2.5e-3  # base colour (degree-0 SH)
+    shN: float = 2.5e-3 / 20  # higher SH degrees
+    opacity: float = 0.05  # opacity logits
+    scales: float = 5e-3  # log scales
+    quats: float = 1e-3  # rotations
 
 
 @dataclass
 class ReconConfig:
     """Geometry-consistent Gaussian-splat reconstruction of one PosedClip."""
 
-    preset: str = "fast"
-    iterations: int = 2000
+    preset: str = "fast"  # name of the preset this config started from (a label saved with the result)
+    iterations: int = 2000  # optimisation steps (one training view each)
     max_width: int = 200  # training/eval images are downscaled to at most this width
-    sh_degree: int = 3
-    sh_increase_every: int = 1000
-    background: tuple = (0.0, 0.0, 0.0)
+    sh_degree: int = 3  # spherical-harmonics degree of the view-dependent colour
+    sh_increase_every: int = 1000  # iterations per active SH degree step (0 up to sh_degree)
+    background: tuple = (0.0, 0.0, 0.0)  # RGB in [0, 1] behind the splats
     backend: str = "auto"  # renderer backend: "auto" | "torch" | "cpu" | "cuda"
-    max_init_points: int = 100_000
-    seed: int = 0
-    checkpoint_every: int = 500
+    max_init_points: int = 100_000  # SfM points the Gaussians start from, at most (random subset)
+    seed: int = 0  # torch / numpy seed (initial point subset, view order)
+    checkpoint_every: int = 500  # iterations between checkpoints (a re-run resumes from the last; 0 = none)
     eval_max_frames: int = 0  # 0 = every held-out frame
     lr: LRConfig = field(default_factory=LRConfig)
     loss: LossConfig = field(default_factory=LossConfig)

@@ -66,17 +66,17 @@ def _sfm_config(preset: str) -> SfMConfig:
 class PipelineConfig:
     """Every stage's config; saved with each scene (pipeline hash = hash of this)."""
 
-    preset: str = "fast"
-    clips: ClipsConfig = field(default_factory=ClipsConfig)
-    decode: DecodeConfig = field(default_factory=DecodeConfig)
-    masks: MasksConfig = field(default_factory=MasksConfig)
-    sfm: Optional[SfMConfig] = None  # None: from the preset (see resolved)
-    metric: Optional[MetricConfig] = None
-    recon: ReconConfig = field(default_factory=lambda: recon_preset("fast"))
-    views: SplatViewConfig = field(default_factory=SplatViewConfig)
-    meshing: MeshingConfig = field(default_factory=MeshingConfig)
-    walkable: WalkableConfig = field(default_factory=WalkableConfig)
-    corridor: CorridorConfig = field(default_factory=CorridorConfig)
+    preset: str = "fast"  # name of the preset this config started from ("fast" | "paper"); a label, read by `resolved`
+    clips: ClipsConfig = field(default_factory=ClipsConfig)  # cutting long sources into clips
+    decode: DecodeConfig = field(default_factory=DecodeConfig)  # frame sampling, quality filters, face blurring
+    masks: MasksConfig = field(default_factory=MasksConfig)  # dynamic-object masks (people, vehicles)
+    sfm: Optional[SfMConfig] = None  # camera poses (COLMAP / GLOMAP); None: from the preset (see resolved)
+    metric: Optional[MetricConfig] = None  # metric scale and ground plane; None: the defaults
+    recon: ReconConfig = field(default_factory=lambda: recon_preset("fast"))  # Gaussian-splat training
+    views: SplatViewConfig = field(default_factory=SplatViewConfig)  # splat depth views rendered for meshing
+    meshing: MeshingConfig = field(default_factory=MeshingConfig)  # TSDF fusion into collision / visual meshes
+    walkable: WalkableConfig = field(default_factory=WalkableConfig)  # walkable map and the physical collision mesh
+    corridor: CorridorConfig = field(default_factory=CorridorConfig)  # walked-corridor check and quality gate
 
     def resolved(self) -> "PipelineConfig":
         """Fill the SfM/metric configs from the preset when left unset."""

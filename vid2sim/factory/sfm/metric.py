@@ -47,12 +47,12 @@ class MetricConfig:
     inlier_frac_of_height: float = 0.03  # RANSAC threshold = this x rough camera height
     corridor_frac_of_height: float = 3.0  # keep points within this x height of the path (sideways)
     local_radius_frac: float = 4.0  # camera height measured on ground points within this x height
-    ransac_iters: int = 2000
+    ransac_iters: int = 2000  # RANSAC iterations of the ground-plane fit
     below_penalty: float = 2.0  # RANSAC prefers the lowest supported plane (see ransac_plane)
-    min_ground_points: int = 30
-    holdout_every: int = 8
+    min_ground_points: int = 30  # fewer ground candidates or plane inliers fails the stage (no_ground_plane)
+    holdout_every: int = 8  # every n-th frame (index % n == 0) is held out as a test view (paper: 8)
     fallback_fps: float = 10.0  # timestamps = index / fps when no frames.parquet exists
-    seed: int = 0
+    seed: int = 0  # RANSAC random seed
 
 
 # ----------------------------------------------------------------------------- geometry

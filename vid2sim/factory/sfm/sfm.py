@@ -43,12 +43,12 @@ class SfMConfig:
     """SfM options. `SfMConfig.preset("fast" | "accurate")` gives the named presets."""
 
     max_image_size: int = 848  # SIFT runs on frames downscaled to this longest side
-    max_num_features: int = 4096
+    max_num_features: int = 4096  # SIFT features per frame, at most
     first_octave: int = -1  # -1: SIFT on a 2x upsampled image (more small features, ~3x slower)
     overlap: int = 10  # sequential matching window
     quadratic_overlap: bool = True  # also match i +- 2^k (a stand-in for loop closure)
     loop_detection: bool = False  # needs vocab_tree_path (a local file; never downloaded)
-    vocab_tree_path: str = ""
+    vocab_tree_path: str = ""  # COLMAP vocabulary-tree file for loop_detection ("" = none)
     mapper: str = "global"  # "global" (GLOMAP) | "incremental"
     fallback_incremental: bool = True  # rerun incrementally if global registers too few
     retriangulate: bool = True  # global mapper's final retriangulation + refinement pass
@@ -56,17 +56,17 @@ class SfMConfig:
     camera_params: list[float] = field(default_factory=list)  # known intrinsics (COLMAP order)
     refine_intrinsics: Optional[bool] = None  # None: refine unless camera_params are given
     lens: LensHint = field(default_factory=LensHint)  # hints for camera_model="auto"
-    num_threads: int = 2
-    seed: int = 0
+    num_threads: int = 2  # COLMAP threads when deterministic is False
+    seed: int = 0  # COLMAP's random seed (RANSAC, mapper)
     # True: COLMAP runs on one thread, so the same frames give the same model bit for bit. With
     # more, image ids follow extraction completion order and each worker thread's RANSAC random
     # state depends on which pairs it ran before (measured: 2 threads gave fx 428 / 434 px and
     # 3.0k / 4.0k points on two runs of the GoPro clip; 1 thread identical). num_threads then
     # only applies when this is False.
     deterministic: bool = True
-    undistort: bool = True
-    min_frames: int = 10
-    min_registered_fraction: float = 0.8
+    undistort: bool = True  # also write pinhole images, masks and model in undistorted/ (recon reads them)
+    min_frames: int = 10  # fewer input frames fails the stage (too_few_frames)
+    min_registered_fraction: float = 0.8  # fewer frames registered fails the stage (too_few_registered)
     static_max_flow_px: float = 1.0  # median match displacement below this -> static camera
     static_min_tri_angle_deg: float = 0.25  # median triangulation angle below this -> static
 
