@@ -31,17 +31,17 @@ TINTS = {  # per-channel RGB gain and overall brightness
 class AugmentConfig:
     """Ranges and probabilities of the per-episode augmentation."""
 
-    enabled: bool = False
-    exposure_ev: tuple[float, float] = (-0.7, 0.7)
+    enabled: bool = False  # augment at all (EnvConfig.augment None: on when training)
+    exposure_ev: tuple[float, float] = (-0.7, 0.7)  # exposure change range, in stops (EV)
     white_balance: tuple[float, float] = (0.85, 1.15)  # red and blue gains, green fixed
     tints: tuple[str, ...] = ("day", "day", "golden", "dusk", "night")  # sampled uniformly
-    fog_prob: float = 0.25
-    fog_density: tuple[float, float] = (0.03, 0.25)  # 1/m
-    fog_color: tuple[int, int, int] = (200, 203, 208)
-    rain_prob: float = 0.15
-    snow_prob: float = 0.1
+    fog_prob: float = 0.25  # probability of fog in an episode
+    fog_density: tuple[float, float] = (0.03, 0.25)  # 1/m, fog density range (transmittance exp(-density x depth))
+    fog_color: tuple[int, int, int] = (200, 203, 208)  # RGB (0-255) the fog blends towards
+    rain_prob: float = 0.15  # probability of rain in an episode
+    snow_prob: float = 0.1  # probability of snow in an episode (exclusive with rain)
     particles: tuple[int, int] = (80, 300)  # per frame at 128x72 (scaled with image area)
-    particle_depth: tuple[float, float] = (0.3, 10.0)  # m
+    particle_depth: tuple[float, float] = (0.3, 10.0)  # m, depth range of rain / snow particles
 
 
 @dataclass

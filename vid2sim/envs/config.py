@@ -41,12 +41,12 @@ FIDELITIES: tuple[str, ...] = ("exact", "fast")
 
 @dataclass(frozen=True)
 class RobotConfig:
-    wheelbase: float = 0.8  # m (paper)
-    max_steer_deg: float = 30.0  # paper (official code: 60)
-    max_speed: float = 1.0  # m/s (official CocoAgent: move x 1 m/s)
-    length: float = 0.9  # m, footprint box
-    width: float = 0.6  # m
-    height: float = 0.6  # m
+    wheelbase: float = 0.8  # m, bicycle-model wheelbase (paper)
+    max_steer_deg: float = 30.0  # deg, maximum steering angle (paper; official code: 60)
+    max_speed: float = 1.0  # m/s, top speed (official CocoAgent: move x 1 m/s)
+    length: float = 0.9  # m, footprint box length
+    width: float = 0.6  # m, footprint box width
+    height: float = 0.6  # m, footprint box height
     ground_clearance: float = 0.15  # m, box bottom above z = 0. Factory scenes agree with it
     # by construction: the physical layer (factory/geometry/walkable.py) drops collision geometry
     # lower than its step (0.1 m, raised to the ground noise) and blocks the map under every
@@ -60,18 +60,18 @@ class RobotConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int = 128
-    height: int = 72
+    width: int = 128  # px, observation image width
+    height: int = 72  # px, observation image height
     vfov_deg: float = 60.0  # Unity default camera at 1280x720
     mount_height: float = 0.65  # m above the ground
     mount_forward: float = 0.45  # m ahead of the robot centre (the box's front face)
-    near: float = 0.05
-    far: float = 100.0
+    near: float = 0.05  # m, near clipping distance
+    far: float = 100.0  # m, far clipping distance
     cov_cull_alpha: float = 0.01  # screen-space covariance culling (paper appendix)
     depth_max: float = 20.0  # m, depth observation saturates here (uint8 = 255)
-    jitter_pos: float = 0.02  # m, max amplitude
-    jitter_rot_deg: float = 0.3  # max amplitude (roll x 5)
-    jitter_freq: tuple[float, float] = (2.0, 10.0)  # Hz
+    jitter_pos: float = 0.02  # m, largest position jitter amplitude (per axis)
+    jitter_rot_deg: float = 0.3  # deg, largest rotation jitter amplitude (roll: x 5)
+    jitter_freq: tuple[float, float] = (2.0, 10.0)  # Hz, range the jitter frequency is drawn from
 
     @property
     def focal(self) -> float:
@@ -82,21 +82,21 @@ class CameraConfig:
 class RewardConfig:
     """The paper's appendix: R = R_term + c1 R_dist + c2 R_steer + c3 R_crash + c4 R_time."""
 
-    success: float = 10.0
-    failure: float = -10.0
+    success: float = 10.0  # terminal reward on reaching the goal
+    failure: float = -10.0  # terminal reward on failure (too many collisions, off the map, time out)
     c_dist: float = 1.0  # x (d_{t-1} - d_t)
     c_steer: float = 0.05  # x |steer_t - steer_{t-1}| x speed (normalised units)
     c_crash: float = 1.0  # per control step in collision
     c_time: float = 0.1  # per control step
-    success_radius: float = 0.5  # m
+    success_radius: float = 0.5  # m, the goal counts as reached within this distance
     max_collisions: int = 3  # failure when exceeded
     max_steps: int = 3000  # truncated with the failure reward
 
 
 @dataclass(frozen=True)
 class EpisodeConfig:
-    geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, the paper
-    min_geodesic: float = 5.0  # m, the paper's real-world range; smaller maps are refused
+    geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, start-goal geodesic distance range (paper)
+    min_geodesic: float = 5.0  # m, shortest start-goal distance (paper: real-world range); smaller maps are refused
     # m kept from blocked cells by episodes and the expert (robot half-width 0.3 + tracking
     # margin), minus what the factory already inflated the map by (its robot_radius_m)
     clearance: float = 0.45
@@ -105,7 +105,7 @@ class EpisodeConfig:
     # its yaw and is not sent into spurs narrower than it can turn in (its turning circle is
     # 1.4 m); a map with no such cell falls back to `clearance`
     end_clearance: float = 0.6
-    start_yaw_noise_deg: float = 15.0
+    start_yaw_noise_deg: float = 15.0  # deg, start heading: towards the path, plus up to this much noise
     pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS
 
@@ -122,28 +122,28 @@ class FastRenderConfig:
 
     # demo factory scene (benchmarks/envs.py): keep 0.85 + 600-step fit: ~30 dB vs exact, ~250
     # steps per CPU-s for PointNav rgb; keep 0.9 unfitted ~28 dB, 0.95 unfitted ~33 dB, ~165
-    keep_mass: float = 0.85
-    fit_iterations: int = 600
-    views: int = 256
-    seed: int = 0
-    t_stop: float = 0.05
-    cell_size: int = 64
+    keep_mass: float = 0.85  # fraction of the measured blend weight the kept splats carry
+    fit_iterations: int = 600  # Adam steps fitting the kept splats' colours to exact renders (0: none)
+    views: int = 256  # robot views the sim-ready set is measured and fitted on
+    seed: int = 0  # seed of those views
+    t_stop: float = 0.05  # a pixel stops once its transmittance is below this (renormalised)
+    cell_size: int = 64  # splats per culling cell
 
 
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything a NavEnv needs besides the scene source."""
 
-    variant: str = "rgb"
-    frame_stack: int = 6
-    physics_hz: int = 50
-    control_hz: int = 5
+    variant: str = "rgb"  # observation: "rgb" | "depth" (oracle) | "mesh-rgb" (baseline)
+    frame_stack: int = 6  # observations stacked per step
+    physics_hz: int = 50  # Hz, physics rate (a multiple of control_hz)
+    control_hz: int = 5  # Hz, action rate
     training: bool = True  # camera jitter and augmentation on; False = evaluation
     jitter: Optional[bool] = None  # None: follows `training`
-    robot: RobotConfig = field(default_factory=RobotConfig)
-    camera: CameraConfig = field(default_factory=CameraConfig)
-    reward: RewardConfig = field(default_factory=RewardConfig)
-    episode: EpisodeConfig = field(default_factory=EpisodeConfig)
+    robot: RobotConfig = field(default_factory=RobotConfig)  # bicycle model and footprint box
+    camera: CameraConfig = field(default_factory=CameraConfig)  # the robot's camera and its jitter
+    reward: RewardConfig = field(default_factory=RewardConfig)  # reward terms and episode limits
+    episode: EpisodeConfig = field(default_factory=EpisodeConfig)  # start / goal sampling and clearances
     obstacles: ObstacleConfig = field(default_factory=ObstacleConfig)  # 0-5 on the corridor
     augment: Optional[AugmentConfig] = None  # None: enabled iff training
     lod: bool = False  # splat octree level of detail (approximate; exact fidelity only)

@@ -306,14 +306,14 @@ class ObstacleSet:
 class ObstacleConfig:
     """Obstacles per episode: 0..max_count on the corridor, plus optional safety scenarios."""
 
-    min_count: int = 0
-    max_count: int = 5
-    kinds: tuple[str, ...] = OBSTACLE_KINDS
+    min_count: int = 0  # fewest obstacles per episode
+    max_count: int = 5  # most obstacles per episode (the count is drawn uniformly, inclusive)
+    kinds: tuple[str, ...] = OBSTACLE_KINDS  # obstacle kinds drawn from, uniformly
     lateral: float = 0.6  # m: max offset of an obstacle from the A* path
     end_clearance: float = 1.5  # m: no obstacle this close to start or goal (along the path)
     spacing: float = 1.5  # m: min distance along the path between two obstacles
-    falling_bin: bool = False
-    roadworks: bool = False
+    falling_bin: bool = False  # safety scenario: a bin tips over into the corridor
+    roadworks: bool = False  # safety scenario: barriers and cones narrow the corridor
 
 
 def _arc(path: np.ndarray) -> np.ndarray:
