@@ -38,11 +38,7 @@ def fmt(v: Any) -> str:
             return "0"
         if a >= 1000:
             return f"{v:.0f}"
-        if a >= 100:
-            return f"{v:.1f}"
-        if a >= 1:
-            return f"{v:.2f}"
-        return f"{v:.3g}"
+        return f"{v:.4g}" if a >= 100 else f"{v:.3g}"
     if isinstance(v, (list, dict)):
         return cell(str(v))
     return cell(str(v))
@@ -156,7 +152,7 @@ def page(benchmark: str, cases: "OrderedDict[str, tuple[dict, list[dict]]]") -> 
     return "\n".join(lines).rstrip() + "\n"
 
 
-def index(found: dict, scripts: list[str]) -> str:
+def index(found: dict, scripts: list[str], others: list[str] = ()) -> str:
     lines = ["# Benchmarks", "",
              "Measured figures of the scripts in `benchmarks/`, rendered by `benchmarks/render_docs.py` "
              "from the results files in `benchmarks/results/` (one JSON file per run, written by the "
@@ -175,6 +171,8 @@ def index(found: dict, scripts: list[str]) -> str:
     missing = [s for s in scripts if s not in found]
     if missing:
         lines += ["", "No results yet: " + ", ".join(f"`benchmarks/{s}.py`" for s in missing) + "."]
+    if others:
+        lines += ["", "Other pages: " + ", ".join(f"[{p}]({p})" for p in others) + "."]
     return "\n".join(lines) + "\n"
 
 
@@ -192,8 +190,10 @@ def render(results: Path = RESULTS_DIR, out: Path = DOCS) -> list[Path]:
         p.write_text(page(b, cases))
         written.append(p)
     scripts = sorted(p.stem for p in (REPO / "benchmarks").glob("*.py") if p.stem not in NOT_BENCHMARKS)
+    others = sorted(p.name for p in out.glob("*.md") if p.stem not in found and p.name != "index.md"
+                    and p.stem not in scripts)
     p = out / "index.md"
-    p.write_text(index(found, scripts))
+    p.write_text(index(found, scripts, others))
     written.append(p)
     return written
 
