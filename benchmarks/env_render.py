@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/env_render.py [--scenes demo gopro] [--poses 16] [--reps 3]
     .venv/bin/python benchmarks/env_render.py --scenes synthetic   # proxy, no factory scene
+    .venv/bin/python benchmarks/env_render.py --quick   # the proxy, 8 poses, 1 rep, one fast setting
     .venv/bin/python benchmarks/env_render.py --scenes PATH/TO/BUNDLE   # any scene bundle folder
 
 Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
@@ -34,7 +35,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from common import hardware_line  # noqa: E402
+from common import Run, add_run_args  # noqa: E402
 from env_scenes import build  # noqa: E402
 from vid2sim.factory.recon.losses import ssim_map  # noqa: E402
 from vid2sim.formats.walkable import WalkableGrid, load_walkable  # noqa: E402
@@ -100,14 +101,18 @@ def timed(fn, reps: int) -> tuple[float, float]:
     return time.perf_counter() - w0, time.process_time() - c0
 
 
-def fps_line(label: str, fn, frames: int, reps: int) -> float:
-    """Print frames/s on 1 and 2 threads; returns frames/s per CPU-second on 1 thread."""
+def fps_line(run: Run, case: str, label: str, fn, frames: int, reps: int) -> float:
+    """Print (and record under case) frames/s on 1 and 2 threads; returns frames/s per CPU-second
+    on 1 thread."""
     numba.set_num_threads(1)
     w1, c1 = timed(fn, reps)
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     w2, _ = timed(fn, reps)
     numba.set_num_threads(1)
     n = frames * reps
+    run.record_all(case, {"fps_1_thread": n / w1, "fps_per_cpu_s_1_thread": n / c1, "fps_2_threads": n / w2},
+                   {"fps_1_thread": "frames/s", "fps_per_cpu_s_1_thread": "frames/CPU-s", "fps_2_threads": "frames/s"},
+                   {"frames": frames, "reps": reps, "image": f"{W}x{H}"})
     print(f"  {label:<48} 1 thread {n / w1:7.1f} fps ({n / c1:7.1f} per CPU-s)   "
           f"2 threads {n / w2:7.1f} fps")
     return n / c1
@@ -152,8 +157,12 @@ def phases(scene: StaticScene, cams: list, st: RasterSettings, cap: int, tile: i
     return out
 
 
-def print_phases(label: str, p: dict) -> None:
+def print_phases(label: str, p: dict, run: Run | None = None, case: str = "") -> None:
     split = ", ".join(f"{k} {v:.2f}" for k, v in p.items() if k not in ("in_view", "blends_px"))
+    if run is not None:
+        run.record_all(case, {f"{k} CPU ms/frame" if k not in ("in_view", "blends_px") else k: v
+                              for k, v in p.items()},
+                       {f"{k} CPU ms/frame": "ms" for k in p}, {"serial kernels": True})
     print(f"    {label} CPU ms per frame: {split}; splats in view {p['in_view']:,.0f}; "
           f"blended splats per covered pixel {p['blends_px']:.1f}")
 
@@ -180,10 +189,12 @@ def load_scene(name: str, args: argparse.Namespace) -> tuple | None:
     return model, cams, train, f"{name}: {bundle}, walkable {grid.area_m2():.0f} m^2"
 
 
-def bench_scene(name: str, args: argparse.Namespace) -> None:
+def bench_scene(run: Run, name: str, args: argparse.Namespace) -> None:
     loaded = load_scene(name, args)
     if loaded is None:
+        run.note(f"skipped scene {name}: its data is absent")
         return
+    tag = Path(name).name if name not in ("demo", "gopro", "synthetic") else name
     model, cams, train, title = loaded
     st = RasterSettings(W, H, active_sh_degree=model.sh_degree)
     print(f"\n## {title}\n  {model.num:,} splats (SH {model.sh_degree}), {len(cams)} robot "
@@ -191,21 +202,28 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
     full = StaticScene(model)
     exact = [full.render(c, st).rgb for c in cams]
     print("  exact (frames/s; per CPU-s = per core):")
-    fps_line("before: StaticScene.render", lambda: [full.render(c, st) for c in cams],
-             len(cams), args.reps)
+    run.record_all(f"{tag}: scene", {"splats": model.num, "sh_degree": model.sh_degree, "poses": len(cams)},
+                   config={"title": title})
+    fps_line(run, f"{tag}: exact, StaticScene.render", "before: StaticScene.render",
+             lambda: [full.render(c, st) for c in cams], len(cams), args.reps)
     batch = SceneBatch([full])
-    fps_line("frame kernel, 8 separate calls of 1 camera", lambda: [batch.render([c], settings=st)
+    fps_line(run, f"{tag}: exact, frame kernel, 8 separate calls of 1 camera",
+             "frame kernel, 8 separate calls of 1 camera", lambda: [batch.render([c], settings=st)
                                                                    for c in cams], len(cams), args.reps)
-    fps_line("frame kernel, 8 cameras per call", lambda: [batch.render(cams[i:i + 8], settings=st)
-                                                          for i in range(0, len(cams), 8)],
+    fps_line(run, f"{tag}: exact, frame kernel, 8 cameras per call", "frame kernel, 8 cameras per call",
+             lambda: [batch.render(cams[i:i + 8], settings=st) for i in range(0, len(cams), 8)],
              len(cams), args.reps)
     phases(full, cams[:1], st, 0, 16)  # compile the serial kernels outside the timing
-    print_phases("exact", phases(full, cams, st, 0, 16))
+    print_phases("exact", phases(full, cams, st, 0, 16), run, f"{tag}: exact, phases")
     fits = np.resize(args.fit_iterations, len(args.keep_mass))
     for mass, fit in zip(args.keep_mass, fits):
         t0 = time.perf_counter()
         conf = SimReadyConfig(keep_mass=mass, bake_colour=True, fit_iterations=int(fit))
         small, _ = sim_ready(model, train, conf, st)
+        run.record_all(f"{tag}: sim-ready keep_mass {mass}, fit {fit}",
+                       {"splats": small.num, "fraction_kept": small.num / model.num,
+                        "made_s": time.perf_counter() - t0}, {"made_s": "s"},
+                       {"train_views": len(train), "bake_colour": True})
         print(f"  sim-ready keep_mass {mass}, fit {fit} steps (colours baked, SH 0): "
               f"{small.num:,} splats ({small.num / model.num:.0%}), made in "
               f"{time.perf_counter() - t0:.1f} s from {len(train)} other robot views")
@@ -213,11 +231,12 @@ def bench_scene(name: str, args: argparse.Namespace) -> None:
         fb = FastBatch([scene])
         for ts in args.t_stop:
             for fill in args.fill_alpha:
-                fast_lines(f"fast, keep_mass {mass}, fit {fit}, t_stop {ts}, fill_alpha {fill}", fb, scene,
+                fast_lines(run, f"{tag}: fast, keep_mass {mass}, fit {fit}, t_stop {ts}, fill_alpha {fill}",
+                           f"fast, keep_mass {mass}, fit {fit}, t_stop {ts}, fill_alpha {fill}", fb, scene,
                            cams, ts, fill, exact, args.reps)
 
 
-def fast_lines(tag: str, fb: FastBatch, scene: StaticScene, cams: list, ts: float,
+def fast_lines(run: Run, case: str, tag: str, fb: FastBatch, scene: StaticScene, cams: list, ts: float,
                fill: float, exact: list, reps: int) -> None:
     """PSNR/SSIM vs exact, frames/s (8 cameras per call and 8 separate calls) and the
     per-phase split of one approximate (FastBatch) setting."""
@@ -225,14 +244,17 @@ def fast_lines(tag: str, fb: FastBatch, scene: StaticScene, cams: list, ts: floa
     kw = dict(settings=st0, t_stop=ts, fill_alpha=fill)
     imgs = fb.render(cams, **kw).rgb
     q = [quality(imgs[i], exact[i]) for i in range(len(cams))]
+    run.record_all(case, {"psnr_vs_exact_mean": np.mean([a for a, _ in q]), "psnr_vs_exact_min": min(a for a, _ in q),
+                          "ssim_vs_exact_mean": np.mean([v for _, v in q]), "ssim_vs_exact_min": min(v for _, v in q)},
+                   {"psnr_vs_exact_mean": "dB", "psnr_vs_exact_min": "dB"})
     print(f"  {tag}: PSNR vs exact mean {np.mean([a for a, _ in q]):.1f} / min "
           f"{min(a for a, _ in q):.1f} dB, SSIM mean {np.mean([v for _, v in q]):.4f} / min "
           f"{min(v for _, v in q):.4f}")
-    fps_line("8 separate calls of 1 camera", lambda: [fb.render([c], **kw) for c in cams],
-             len(cams), reps)
-    fps_line("8 cameras per call", lambda: [fb.render(cams[i:i + 8], **kw)
-                                            for i in range(0, len(cams), 8)], len(cams), reps)
-    print_phases("fast", fast_phases(fb, scene, cams, ts, fill))
+    fps_line(run, f"{case}, 8 separate calls of 1 camera", "8 separate calls of 1 camera",
+             lambda: [fb.render([c], **kw) for c in cams], len(cams), reps)
+    fps_line(run, f"{case}, 8 cameras per call", "8 cameras per call",
+             lambda: [fb.render(cams[i:i + 8], **kw) for i in range(0, len(cams), 8)], len(cams), reps)
+    print_phases("fast", fast_phases(fb, scene, cams, ts, fill), run, f"{case}, phases")
 
 
 def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: float) -> dict:
@@ -297,12 +319,16 @@ def main() -> None:
                     help="fast path: pixels with alpha >= this read as opaque (1.0: off)")
     ap.add_argument("--cell-size", type=int, default=64, help="culling cell of the fast path")
     ap.add_argument("--synthetic-splats", type=int, default=75_000)
+    ap.add_argument("--quick", action="store_true",
+                    help="the synthetic proxy only, 8 poses, 1 rep, keep_mass 0.9 without fit (smoke run)")
+    add_run_args(ap)
     args = ap.parse_args()
-    print(f"# env render benchmark\ncommand: {' '.join([sys.executable] + sys.argv)}")
-    print(f"hardware: {hardware_line()}; numba {numba.__version__}")
-    for name in args.scenes:
-        bench_scene(name, args)
-    print(f"\nload average at end: {hardware_line()}")
+    if args.quick:
+        args.scenes, args.poses, args.reps = ["synthetic"], 8, 1
+        args.keep_mass, args.fit_iterations = [0.9], [0]
+    with Run("env_render", args) as run:
+        for name in args.scenes:
+            bench_scene(run, name, args)
 
 
 if __name__ == "__main__":

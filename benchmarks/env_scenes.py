@@ -75,6 +75,14 @@ def build(name: str, refresh: bool = False) -> Optional[Path]:
 
 
 def agreement(bundle: Path) -> str:
+    """Map vs physics, in words (agreement_figures)."""
+    f = agreement_figures(bundle)
+    return (f"{f['planner_cells']} planner cells; nearest collision surface in the robot's {f['band_low_m']:.2f}-"
+            f"{f['band_high_m']:.2f} m band: {f['nearest_surface_m']:.3f} m (robot half-width "
+            f"{f['robot_half_width_m']:.2f} m)")
+
+
+def agreement_figures(bundle: Path) -> dict:
     """Map vs physics: the smallest horizontal distance from a cell the envs may put the robot
     on (planner map) to collision-mesh surface inside the robot box's height band."""
     import numpy as np
@@ -97,8 +105,8 @@ def agreement(bundle: Path) -> str:
     lo, hi = robot.ground_clearance, robot.ground_clearance + robot.height
     band = pts[(pts[:, 2] >= lo) & (pts[:, 2] <= hi)]
     d = cKDTree(band[:, :2]).query(planner.to_world(rows, cols))[0] if len(band) else [np.inf]
-    return (f"{len(rows)} planner cells; nearest collision surface in the robot's {lo:.2f}-{hi:.2f} m "
-            f"band: {np.min(d):.3f} m (robot half-width {robot.width / 2:.2f} m)")
+    return {"planner_cells": len(rows), "nearest_surface_m": float(np.min(d)), "band_low_m": lo,
+            "band_high_m": hi, "robot_half_width_m": robot.width / 2}
 
 
 def scene_id(bundle: Path) -> str:
@@ -107,10 +115,34 @@ def scene_id(bundle: Path) -> str:
     return json.loads((bundle / "scene.json").read_text())["scene_id"]
 
 
-if __name__ == "__main__":
-    names = [a for a in sys.argv[1:] if not a.startswith("--")] or ["demo", "gopro"]
-    for n in names:
-        b = build(n, refresh="--refresh" in sys.argv)
-        print(n, b, "" if b is None else f"--factory {CACHE / n / 'registry'} {scene_id(b)}")
-        if b is not None:
+def main() -> None:
+    import argparse
+
+    from common import Run, add_run_args  # benchmarks/common.py
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("names", nargs="*", default=["demo", "gopro"], help="demo, gopro")
+    ap.add_argument("--refresh", action="store_true", help="ingest again (cached stages are kept)")
+    add_run_args(ap)
+    args = ap.parse_args()
+    with Run("env_scenes", args, config={"cache": str(CACHE)}) as run:
+        for n in args.names or ["demo", "gopro"]:
+            cached = find_bundle(n) is not None and not args.refresh
+            t0 = time.perf_counter()
+            b = build(n, refresh=args.refresh)
+            if b is None:
+                run.note(f"skipped {n}: its data is absent")
+                print(n, b)
+                continue
+            run.record_all(f"{n}: build", {"seconds": time.perf_counter() - t0, "cached": cached}, {"seconds": "s"},
+                           {"refresh": args.refresh})
+            print(n, b, f"--factory {CACHE / n / 'registry'} {scene_id(b)}")
+            f = agreement_figures(b)
+            run.record_all(f"{n}: map vs physics", {k: f[k] for k in ("planner_cells", "nearest_surface_m")},
+                           {"nearest_surface_m": "m"},
+                           {k: f[k] for k in ("band_low_m", "band_high_m", "robot_half_width_m")})
             print(f"{n} map vs physics: {agreement(b)}")
+
+
+if __name__ == "__main__":
+    main()
