@@ -13,13 +13,13 @@ fast splat RGB render against the exact one at the steps' own camera poses (dept
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
-       [--no-expert] [--fast 0.85:600 0.9:600 0.9 0.95] [--no-exact]
+       [--no-expert] [--fast 0.85:600 0.9:600 0.9 0.95] [--no-exact] [--quick]
+--quick: one 75k GT bundle, 3 expert episodes, 60 speed steps, fast path 0.9 without fit (smoke run).
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
 from collections import Counter
 import tempfile
 import time
@@ -29,7 +29,7 @@ import gymnasium
 import numba
 import numpy as np
 
-from common import hardware_line
+from common import Run, add_run_args
 import vid2sim.envs  # noqa: F401  (registers the env ids)
 from vid2sim.envs.config import FastRenderConfig, RewardConfig
 from vid2sim.envs.expert import PurePursuitExpert
@@ -63,7 +63,7 @@ def make(root: str, scene: str, task: str = "PointNav", variant: str = "rgb", **
                           checkout_root=CHECKOUTS, **kw)
 
 
-def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
+def expert_table(run: Run, label: str, root: str, scene: str, episodes: int, max_steps: int) -> tuple:
     """Summary of the scripted expert's episodes and the count of each episode end."""
     env = make(root, scene, training=False, reward=RewardConfig(max_steps=max_steps))
     expert, records, ends = PurePursuitExpert(), [], Counter()
@@ -79,6 +79,11 @@ def expert_table(root: str, scene: str, episodes: int, max_steps: int) -> tuple:
         ends[e.end] += 1
         ends["obstacles"] += len(env.unwrapped.actors.obstacle_xy())
         x, y, _ = env.unwrapped.robot_pose()
+        run.record_all(f"{label}: expert seed {seed}",
+                       {"end": e.end, "steps": e.steps, "path_m": e.path_length, "shortest_m": e.shortest_length,
+                        "collisions": e.collision_events, "obstacles": len(env.unwrapped.actors.obstacle_xy()),
+                        "end_x": x, "end_y": y}, {"path_m": "m", "shortest_m": "m", "end_x": "m", "end_y": "m"},
+                       {"max_steps": max_steps, "mode": "evaluation"})
         print(f"  seed {seed}: {e.end}, {e.steps} steps, {e.path_length:.1f} / {e.shortest_length:.1f} m, "
               f"{e.collision_events} collisions, {len(env.unwrapped.actors.obstacle_xy())} obstacles, "
               f"ended at ({x:.2f}, {y:.2f})", flush=True)
@@ -152,10 +157,20 @@ def main() -> None:
                          "fit iterations (e.g. 0.9:600; the env default is 0.85:600)")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
+    ap.add_argument("--quick", action="store_true",
+                    help="one 75k GT bundle, 3 episodes, 60 speed steps, fast 0.9 without fit")
+    add_run_args(ap)
     args = ap.parse_args()
+    if args.quick:
+        args.episodes, args.steps = min(args.episodes, 3), min(args.steps, 60)
+        args.gt_splats, args.fast = args.gt_splats or [75_000], ["0.9"]
     numba.set_num_threads(1)
-    print(hardware_line())
-    print("command:", " ".join([Path(sys.executable).name] + sys.argv), "| numba threads: 1")
+    with Run("envs", args, config={"numba_threads": 1}) as run:
+        bench(run, args)
+
+
+def bench(run: Run, args: argparse.Namespace) -> None:
+    print("numba threads: 1")
     scenes: list[tuple[str, str, str]] = []
     pairs = ([(args.registry, args.scene)] if args.registry and args.scene else []) + args.factory
     for root, sid in pairs:
@@ -172,9 +187,12 @@ def main() -> None:
     for root, sid, label in ([] if args.no_expert else scenes):
         if "200k" in sid:
             continue  # same street as the 75k bundle: the expert does not look at the splats
-        s, ends = expert_table(root, sid, args.episodes, args.max_steps)
+        s, ends = expert_table(run, label, root, sid, args.episodes, args.max_steps)
         n_obs = ends.pop("obstacles", 0) / max(s.episodes, 1)
         why = ", ".join(f"{k} {n}" for k, n in ends.most_common())
+        run.record_all(f"{label}: scripted expert, PointNav, {args.episodes} episodes",
+                       {"SR": s.sr, "SPL": s.spl, "Cost": s.cost, "SNS": s.sns, "obstacles per episode": n_obs,
+                        "episode ends": why}, config={"max_steps": args.max_steps, "obstacles": "0-5"})
         print(f"| {label} | {100 * s.sr:.0f} % | {s.spl:.3f} | {s.cost:.2f} | {s.sns:.3f} | {n_obs:.1f} | {why} |",
               flush=True)
     if args.no_speed:
@@ -194,10 +212,18 @@ def main() -> None:
                 sps, wps, parts, q, n = speed(root, sid, task, variant, args.steps, fidelity, conf)
                 name = "exact" if fidelity == "exact" else f"fast k={keep}" + (f" fit {fit}" if fit else "")
                 qual = f"{np.mean(q):.1f} ({min(q):.1f})" if q else "-"
+                run.record_all(f"{label}: {task} {variant}, {name}",
+                               {"splats": n, "steps_per_cpu_s": sps, "steps_per_wall_s": wps,
+                                "psnr_vs_exact_mean": float(np.mean(q)) if q else None,
+                                "psnr_vs_exact_min": min(q) if q else None,
+                                **{f"{k} CPU ms/step": parts[k] for k in (*PARTS, "other")}},
+                               {"steps_per_cpu_s": "steps/CPU-s", "steps_per_wall_s": "steps/s",
+                                "psnr_vs_exact_mean": "dB", "psnr_vs_exact_min": "dB",
+                                **{f"{k} CPU ms/step": "ms" for k in (*PARTS, "other")}},
+                               {"steps": args.steps, "mode": "training", "t_stop": conf.t_stop})
                 cells = " | ".join(f"{parts[k]:.2f}" for k in (*PARTS, "other"))
                 print(f"| {label} | {task} {variant} | {name} | {n // 1000}k | {sps:.0f} | {wps:.0f} | "
                       f"{qual} | {cells} |", flush=True)
-    print(f"\nat end: {hardware_line()}")
 
 
 if __name__ == "__main__":
