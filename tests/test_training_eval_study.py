@@ -1,9 +1,10 @@
-"""Evaluation statistics, study count clipping and plot (quick); expert eval and a study end to end (slow)."""
+"""Evaluation statistics, study count checks and plot (quick); expert eval and a study end to end (slow)."""
 
 from __future__ import annotations
 
 import json
 import os
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -15,7 +16,7 @@ from vid2sim.training.config import SACConfig
 from vid2sim.training.evaluate import EvalConfig, bootstrap_ci, evaluate, summarize
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
-from vid2sim.training.study import StudyConfig, StudyRow, clip_counts, plot, run_study
+from vid2sim.training.study import StudyConfig, StudyError, StudyRow, check_counts, plot, run_study
 
 
 def rec(success: bool, path: float, hits: int = 0) -> EpisodeRecord:
@@ -40,9 +41,12 @@ def test_bootstrap_interval_shrinks_with_more_episodes():
     assert bootstrap_ci(np.ones(5)).low == 1.0
 
 
-def test_counts_clipped_with_warning():
-    with pytest.warns(UserWarning, match="clipped to 4"):
-        assert clip_counts([1, 5, 15, 3], 4) == [1, 3, 4]
+def test_counts_larger_than_the_pool_are_a_named_error():
+    assert check_counts([5, 1, 3, 1], 5) == [1, 3, 5]
+    with pytest.raises(StudyError, match=r"bad_count: .*\[15\].*1\.\.4"):
+        check_counts([1, 15, 3], 4)
+    with pytest.raises(StudyError, match="bad_count"):
+        check_counts([0], 4)
 
 
 def test_study_plot(tmp_path):
@@ -85,8 +89,9 @@ def test_study_end_to_end_on_ray(street_registry, tmp_path):
         config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1, 99], seeds=1,
                              total_steps=40, n_envs=1, trials=1, sac=sac, env_id=PRIVILEGED_ID,
                              env_module="vid2sim.training.privileged")
-        with pytest.warns(UserWarning, match="clipped"):
-            rows = run_study(config)
+        with pytest.raises(StudyError, match="bad_count"):
+            run_study(config)
+        rows = run_study(replace(config, counts=[1, 4]))
     finally:
         ray.shutdown()
     assert sorted(r.count for r in rows) == [1, 4]

@@ -1,9 +1,10 @@
-"""`vid2sim train` and `vid2sim study`: SAC training runs and scene-count studies (argument parsing only)."""
+"""`vid2sim train` and `vid2sim study`: SAC or distillation runs and scene-count studies (argument parsing only)."""
 
 from __future__ import annotations
 
 import json
 from dataclasses import asdict, replace
+from pathlib import Path
 from typing import Optional
 
 import typer
@@ -11,11 +12,15 @@ from rich.console import Console
 from rich.table import Table
 
 from vid2sim.training.actions import check_map
-from vid2sim.training.config import SACConfig, TrainConfig
+from vid2sim.training.config import METHODS, DistillConfig, SACConfig, TrainConfig
+from vid2sim.training.distill import summary, train_distill
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
 from vid2sim.training.sac import train
+from vid2sim.training.student import StudentConfig
 from vid2sim.training.study import StudyConfig, run_study
+
+DEFAULT_STEPS = {"sac": 1_500_000, "distill": 80_000}  # the paper's SAC budget; a 2-core CPU distillation
 
 
 def _sac(learning_starts: Optional[int], batch_size: Optional[int], buffer_size: Optional[int]) -> SACConfig:
@@ -37,10 +42,43 @@ def _study_env(env: str) -> dict[str, str]:
     raise typer.BadParameter(f"--env must be pixel or privileged, got {env!r}")
 
 
+def _distill(steps_per_round: int, updates_per_round: int, beta_decay: float, frames: int, pool: int,
+             shift_pad: int) -> DistillConfig:
+    return DistillConfig(steps_per_round=steps_per_round, updates_per_round=updates_per_round, beta_decay=beta_decay,
+                         shift_pad=shift_pad, student=StudentConfig(frames=frames, pool=pool))
+
+
+def _counts(text: str) -> list[int]:
+    try:
+        return [int(c) for c in text.split(",") if c.strip()]
+    except ValueError:
+        raise typer.BadParameter(f"--counts must be comma-separated integers, got {text!r}") from None
+
+
+def _method(method: str) -> str:
+    if method not in METHODS:
+        raise typer.BadParameter(f"--method must be one of {', '.join(METHODS)}, got {method!r}")
+    return method
+
+
+def _resumed_config(run_dir: str, steps: Optional[int]) -> TrainConfig:
+    """A resumed run keeps its recorded config; only the step budget may grow."""
+    path = Path(run_dir) / "config.json"
+    if not path.is_file():
+        raise typer.BadParameter(f"cannot resume {run_dir}: {path} does not exist (not a run folder)")
+    config = TrainConfig.load(path)
+    if steps is not None:
+        config.total_steps = steps
+    return config
+
+
 def train_command(
     registry: str = typer.Option(..., "--registry", help="Registry root."),
     run_dir: str = typer.Option(..., "--run", help="Run folder (config, scenes, checkpoints, TensorBoard)."),
-    steps: int = typer.Option(1_500_000, "--steps", help="Env-step budget (the paper: 1.5M)."),
+    method: str = typer.Option("sac", "--method", help="sac (paper preset) | distill (pixel student from the A* "
+                                                       "teacher, DAgger)."),
+    steps: Optional[int] = typer.Option(None, "--steps", help="Env-step budget (default: sac 1.5M as the paper, "
+                                                              "distill 80k)."),
     split_seed: int = typer.Option(0, "--split-seed", help="Registry split seed."),
     train_scenes: Optional[int] = typer.Option(None, "--train-scenes", help="Nested train subset size (default: all)."),
     task: str = typer.Option("PointNav", "--task", help="PointNav | SocialNav"),
@@ -48,24 +86,48 @@ def train_command(
     n_envs: int = typer.Option(4, "--envs", help="Parallel environments."),
     n_actors: int = typer.Option(2, "--actors", help="Ray actors hosting the envs (0: in-process)."),
     seed: int = typer.Option(0, "--seed"),
-    learning_starts: Optional[int] = typer.Option(None, "--learning-starts", help="Override the paper's 10000."),
-    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="Override the paper's 256."),
-    buffer_size: Optional[int] = typer.Option(None, "--buffer-size", help="Replay cap (also capped by free memory)."),
-    checkpoint_every: int = typer.Option(10_000, "--checkpoint-every"),
+    learning_starts: Optional[int] = typer.Option(None, "--learning-starts", help="sac: override the paper's 10000."),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="sac: override the paper's 256."),
+    buffer_size: Optional[int] = typer.Option(None, "--buffer-size", help="sac: replay cap (also capped by memory)."),
+    checkpoint_every: int = typer.Option(10_000, "--checkpoint-every", help="sac: env steps between checkpoints."),
     action_map: str = typer.Option("clamp", "--action-map",
-                                   help="clamp (the envs' speed contract) | full (speed = (a + 1) / 2)."),
-    resume: bool = typer.Option(False, "--resume", help="Continue from RUN/checkpoints/last.zip."),
+                                   help="sac: clamp (the envs' speed contract) | full (speed = (a + 1) / 2)."),
+    steps_per_round: int = typer.Option(4000, "--steps-per-round", help="distill: env steps collected per round."),
+    updates_per_round: int = typer.Option(1500, "--updates-per-round", help="distill: learner steps per round."),
+    beta_decay: float = typer.Option(0.5, "--beta-decay", help="distill: teacher's episode share x this per round."),
+    frames: int = typer.Option(2, "--frames", help="distill: most recent frames the student sees (1-6)."),
+    pool: int = typer.Option(2, "--pool", help="distill: frame down-sampling factor (2: 36 x 64)."),
+    shift_pad: int = typer.Option(4, "--shift-pad", help="distill: random-shift augmentation in pixels (0: off)."),
+    stuck_steps: int = typer.Option(10, "--stuck-steps", help="distill: end a training episode after this many "
+                                                              "control steps without motion (0: never)."),
+    checkout_root: Optional[str] = typer.Option(None, "--checkout-root", help="Scene checkouts (and their sim-ready "
+                                                "sets) shared between runs (default: RUN/scenes)."),
+    resume: bool = typer.Option(False, "--resume", help="Continue the run from its checkpoint, with its recorded "
+                                                        "config (only --steps may change)."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster (default: local runtime)."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", help="Local Ray runtime CPUs."),
 ) -> None:
-    """Train SAC (paper preset) on a registry split's training scenes."""
-    config = TrainConfig(run_dir=run_dir, total_steps=steps, env_id=f"vid2sim/{task}-v0",
-                         env_kwargs={"variant": variant}, registry=registry, split_seed=split_seed,
-                         train_scenes=train_scenes, n_envs=n_envs, n_actors=n_actors, seed=seed,
-                         checkpoint_every=checkpoint_every, action_map=check_map(action_map),
-                         sac=_sac(learning_starts, batch_size, buffer_size))
-    if n_actors > 0:
+    """Train SAC (paper preset) or distil a pixel student from the A* teacher on a registry split's training scenes."""
+    if resume:
+        config = _resumed_config(run_dir, steps)
+    else:
+        env_kwargs: dict = {"variant": variant}
+        if checkout_root:
+            env_kwargs["checkout_root"] = checkout_root
+        config = TrainConfig(run_dir=run_dir, total_steps=steps or DEFAULT_STEPS[_method(method)],
+                             env_id=f"vid2sim/{task}-v0", env_kwargs=env_kwargs, registry=registry,
+                             split_seed=split_seed, train_scenes=train_scenes, n_envs=n_envs, n_actors=n_actors,
+                             seed=seed, checkpoint_every=checkpoint_every, action_map=check_map(action_map),
+                             sac=_sac(learning_starts, batch_size, buffer_size), method=method,
+                             stuck_steps=(stuck_steps or None) if method == "distill" else None,
+                             distill=_distill(steps_per_round, updates_per_round, beta_decay, frames, pool, shift_pad))
+    if config.n_actors > 0:
         _ray(ray_address, num_cpus)
+    if config.method == "distill":
+        result = train_distill(config, resume=resume, log=lambda row: typer.echo(json.dumps(summary([row]))))
+        typer.echo(json.dumps({"run": str(result.run_dir), "steps": result.num_timesteps,
+                               "wall_s": round(result.wall_s, 1), **summary(result.history)}))
+        return
     result = train(config, resume=resume)
     last = result.history[-1] if result.history else {}
     typer.echo(json.dumps({"run": str(result.run_dir), "steps": result.num_timesteps,
@@ -75,9 +137,13 @@ def train_command(
 def study_command(
     registry: str = typer.Option(..., "--registry", help="Registry root."),
     out_dir: str = typer.Option(..., "--out", help="Study folder (runs, study.json, study.png)."),
-    counts: str = typer.Option("1,5,15,25,30", "--counts", help="Training-scene counts (clipped to the registry)."),
-    seeds: int = typer.Option(2, "--seeds", help="Trainings per count."),
-    steps: int = typer.Option(20_000, "--steps", help="Env steps per training."),
+    counts: str = typer.Option("1,5,15,25,30", "--counts", help="Training-scene counts (each <= the train pool)."),
+    seeds: int = typer.Option(3, "--seeds", help="Trainings per count."),
+    method: str = typer.Option("sac", "--method", help="sac | distill (pixel student from the A* teacher)."),
+    steps: Optional[int] = typer.Option(None, "--steps", help="Env steps per training (default: sac 20k, "
+                                                              "distill 80k)."),
+    steps_per_round: int = typer.Option(4000, "--steps-per-round", help="distill: env steps collected per round."),
+    updates_per_round: int = typer.Option(1500, "--updates-per-round", help="distill: learner steps per round."),
     trials: int = typer.Option(25, "--trials", help="Episodes per held-out test scene."),
     split_seed: int = typer.Option(0, "--split-seed"),
     n_envs: int = typer.Option(2, "--envs", help="Envs per training (in the training's Ray task)."),
@@ -92,10 +158,17 @@ def study_command(
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
-    config = StudyConfig(registry=registry, out_dir=out_dir, counts=[int(c) for c in counts.split(",")],
+    method = _method(method)
+    steps = steps or {"sac": 20_000, "distill": DEFAULT_STEPS["distill"]}[method]
+    env_ids = _study_env("pixel" if method == "distill" else env)
+    config = StudyConfig(registry=registry, out_dir=out_dir, counts=_counts(counts),
                          seeds=seeds, split_seed=split_seed, total_steps=steps, n_envs=n_envs, trials=trials,
                          obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size),
-                         eval_max_steps=eval_max_steps, **_study_env(env))
+                         eval_max_steps=eval_max_steps, method=method,
+                         env_kwargs={"training": True} if method == "distill" else {},
+                         stuck_steps=10 if method == "distill" else None,
+                         distill=replace(DistillConfig(), steps_per_round=steps_per_round,
+                                         updates_per_round=updates_per_round), **env_ids)
     _ray(ray_address, num_cpus)
     rows = run_study(config)
     if as_json:

@@ -7,6 +7,10 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Optional
 
+from vid2sim.training.student import StudentConfig
+
+METHODS = ("sac", "distill")
+
 
 @dataclass
 class SACConfig:
@@ -36,6 +40,35 @@ class SACConfig:
 
 
 @dataclass
+class DistillConfig:
+    """Teacher-student distillation (DAgger, `training/distill.py`): rounds of collection and fitting."""
+
+    steps_per_round: int = 4000  # env steps collected per round, all envs together (rounds = total_steps / this)
+    beta0: float = 1.0  # probability that the teacher drives an episode in round 0 (1: behaviour cloning)
+    beta_decay: float = 0.5  # the teacher's share of episodes is multiplied by this every round
+    min_beta: float = 0.0  # floor of the teacher's share
+    updates_per_round: int = 1500  # Adam steps on the aggregated dataset after each round
+    batch_size: int = 128  # samples per Adam step
+    learning_rate: float = 3e-4  # Adam step size
+    shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
+    max_samples: int = 150_000  # dataset cap in labelled states (the oldest rounds are dropped first)
+    drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)
+    train_max_steps: int = 500  # episode limit while collecting (truncation); evaluation keeps the env's 3000
+    threads: int = 0  # torch threads of the learner (0: torch's default)
+    student: StudentConfig = field(default_factory=StudentConfig)
+
+    def __post_init__(self) -> None:
+        if isinstance(self.student, dict):
+            self.student = StudentConfig(**self.student)
+        for name in ("steps_per_round", "updates_per_round", "batch_size", "max_samples"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"distill.{name} must be > 0, got {getattr(self, name)}")
+        for name in ("beta0", "beta_decay", "min_beta"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"distill.{name} must be in [0, 1], got {getattr(self, name)}")
+
+
+@dataclass
 class TrainConfig:
     """One training run: which scenes, how many envs and actors, the budget, where to write."""
 
@@ -56,6 +89,16 @@ class TrainConfig:
     stuck_steps: Optional[int] = None  # training only: end blocked episodes as failures (training/wrappers.py)
     action_map: str = "clamp"  # policy -> env actions (training/actions.py): "clamp" (envs' contract) or "full"
     sac: SACConfig = field(default_factory=SACConfig)
+    method: str = "sac"  # "sac" (training/sac.py) or "distill" (pixel student from the A* teacher, training/distill.py)
+    distill: DistillConfig = field(default_factory=DistillConfig)
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
+        if self.total_steps <= 0:
+            raise ValueError(f"total_steps must be > 0, got {self.total_steps}")
+        if self.n_envs <= 0:
+            raise ValueError(f"n_envs must be > 0, got {self.n_envs}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -67,7 +110,8 @@ class TrainConfig:
         sac = dict(d.pop("sac", {}))
         if "net_arch" in sac:
             sac["net_arch"] = tuple(sac["net_arch"])
-        return cls(**d, sac=SACConfig(**sac))
+        distill = DistillConfig(**d.pop("distill", {}))
+        return cls(**d, sac=SACConfig(**sac), distill=distill)
 
     def save(self, path: Path) -> None:
         path.write_text(json.dumps(self.to_dict(), indent=2))

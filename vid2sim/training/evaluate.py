@@ -22,6 +22,7 @@ from typing import Callable, Optional
 
 import gymnasium as gym
 import numpy as np
+import torch
 from stable_baselines3 import SAC
 
 import vid2sim.envs  # noqa: F401  (registers the env ids)
@@ -33,6 +34,8 @@ from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.envs.recording import RecordEpisode
 from vid2sim.registry import Registry
 from vid2sim.training.actions import to_env
+from vid2sim.training.distill import STUDENT_NAME
+from vid2sim.training.student import StudentPolicy
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
 METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
@@ -84,10 +87,31 @@ Policy = Callable[[gym.Env, dict], np.ndarray]
 
 def policy_path(policy: str) -> Path:
     p = Path(policy)
-    for cand in (p, p / "final.zip", p / "checkpoints" / "last.zip"):
+    for cand in (p, p / "final.zip", p / STUDENT_NAME, p / "checkpoints" / "last.zip", p / "checkpoints" / "last.pt"):
         if cand.is_file():
             return cand
-    raise FileNotFoundError(f"no SAC checkpoint at {policy} (looked for final.zip, checkpoints/last.zip)")
+    raise FileNotFoundError(f"no policy at {policy} (looked for final.zip, {STUDENT_NAME}, checkpoints/last.zip, "
+                            "checkpoints/last.pt)")
+
+
+class ObservationMismatch(ValueError):
+    """A policy whose observation does not match the evaluation env's."""
+
+
+def load_student(path: Path) -> StudentPolicy:
+    """The distilled student of a run (RUN/student.pt, or the `student` of a checkpoints/last.pt)."""
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    return StudentPolicy.from_checkpoint(ckpt["student"] if "student" in ckpt else ckpt)
+
+
+def check_observation(env: gym.Env, shapes: dict[str, tuple], policy: str) -> None:
+    """Raise `ObservationMismatch` (named) when the env's observation differs from the policy's."""
+    space = env.observation_space
+    have = {k: tuple(s.shape) for k, s in space.spaces.items()} if hasattr(space, "spaces") else {"": space.shape}
+    want = {k: tuple(v) for k, v in shapes.items()}
+    if have != want:
+        raise ObservationMismatch(f"observation_mismatch: policy {policy} expects {want}, the env gives {have} "
+                                  "(task, variant or observation arguments differ from its training)")
 
 
 OBSERVATION_KWARGS = ("n_rays", "fov_deg", "max_range", "ray_height")  # env arguments that shape the observation
@@ -113,7 +137,16 @@ def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], Non
     if policy == "expert":
         expert = PurePursuitExpert()
         return (lambda env, obs: expert.act(env)), expert.reset
-    model = SAC.load(policy_path(policy), device="cpu")
+    path = policy_path(policy)
+    if path.suffix == ".pt":
+        student = load_student(path)
+
+        def act_student(env: gym.Env, obs: dict) -> np.ndarray:
+            check_observation(env, {"image": student.image_shape, "vector": student.vector_shape}, policy)
+            with torch.no_grad():
+                return student(torch.from_numpy(obs["image"][None]), torch.from_numpy(obs["vector"][None]))[0].numpy()
+        return act_student, (lambda env: None)
+    model = SAC.load(path, device="cpu")
     mapping = getattr(model, "action_map", "clamp")  # the training envs' action mapping (saved with the model)
     return (lambda env, obs: to_env(model.predict(obs, deterministic=True)[0], mapping)), (lambda env: None)
 

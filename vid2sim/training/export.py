@@ -1,6 +1,7 @@
 """Policy export for deployment: ONNX (checked with onnxruntime) and a `torch.export` program.
 
-The exported graph is the deterministic SAC actor with everything a robot needs baked in:
+The exported graph is the deterministic SAC actor, or the distilled pixel student
+(`training/student.py`, whose graph is its own `forward`), with everything a robot needs baked in:
 uint8 frames in (scaled to [0, 1] inside), the goal vector in metres / radians (scaled inside),
 `tanh` squashing, the action-space rescale, a clamp to [low, high] and the policy's action
 mapping (`model.action_map`, `vid2sim.training.actions`: "full" maps speed to (p + 1) / 2).
@@ -25,6 +26,7 @@ from stable_baselines3 import SAC
 from torch import nn
 
 from vid2sim.training.actions import affine, check_map
+from vid2sim.training.student import StudentPolicy
 from vid2sim.versioning import code_version
 
 ONNX_NAME, PROGRAM_NAME, META_NAME = "policy.onnx", "policy.pt2", "policy.json"
@@ -65,31 +67,46 @@ class PolicyMeta:
     code_version: str
     source: str
     action_map: str = "clamp"  # baked into the graph already; recorded for the reader
+    method: str = "sac"  # "sac" (actor of a SAC model) or "distill" (pixel student)
+    architecture: Optional[dict] = None  # the student's encoder and input choice (StudentConfig), for distill
 
 
-def example_inputs(model: SAC, batch: int = 1) -> tuple[torch.Tensor, torch.Tensor]:
+def load_model(model: SAC | StudentPolicy | str | Path) -> SAC | StudentPolicy:
+    """A SAC model or a distilled student, from memory, a SAC .zip, a student .pt or a run folder."""
+    if isinstance(model, (SAC, StudentPolicy)):
+        return model
+    from vid2sim.training.evaluate import load_student, policy_path  # evaluate imports this module's neighbours
+
+    path = policy_path(str(model))
+    return load_student(path) if path.suffix == ".pt" else SAC.load(path, device="cpu")
+
+
+def graph_and_meta(model: SAC | StudentPolicy, source: str) -> tuple[nn.Module, PolicyMeta]:
+    """The module to export and its metadata."""
+    if isinstance(model, StudentPolicy):
+        meta = PolicyMeta(list(model.image_shape), list(model.vector_shape), ["speed", "steering"], code_version(),
+                          source, "clamp", "distill", model.config.to_dict())
+        return model.eval(), meta
     spaces = model.observation_space.spaces
-    image = torch.randint(0, 256, (batch, *spaces["image"].shape), dtype=torch.uint8)
-    return image, torch.randn(batch, *spaces["vector"].shape)
+    meta = PolicyMeta(list(spaces["image"].shape), list(spaces["vector"].shape), ["speed", "steering"],
+                      code_version(), source, action_map(model))
+    return DeterministicActor(model).eval(), meta
 
 
-def export_policy(model: SAC | str | Path, out_dir: str | Path) -> Path:
+def export_policy(model: SAC | StudentPolicy | str | Path, out_dir: str | Path) -> Path:
     """Write policy.onnx, policy.pt2 and policy.json into `out_dir`; returns `out_dir`."""
-    source = str(model) if not isinstance(model, SAC) else "in-memory"
-    model = model if isinstance(model, SAC) else SAC.load(model, device="cpu")
+    source = "in-memory" if isinstance(model, (SAC, StudentPolicy)) else str(model)
+    actor, meta = graph_and_meta(load_model(model), source)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    actor = DeterministicActor(model).eval()
-    inputs = example_inputs(model, batch=2)
+    image = torch.randint(0, 256, (2, *meta.image_shape), dtype=torch.uint8)
+    inputs = (image, torch.randn(2, *meta.vector_shape))
     batch = torch.export.Dim("batch", min=1, max=1024)
     shapes = {"image": {0: batch}, "vector": {0: batch}}
     program = torch.export.export(actor, inputs, dynamic_shapes=shapes)
     torch.export.save(program, out / PROGRAM_NAME)
     torch.onnx.export(actor, inputs, out / ONNX_NAME, input_names=["image", "vector"], output_names=["action"],
                       dynamic_shapes=shapes, dynamo=True, external_data=False)
-    spaces = model.observation_space.spaces
-    meta = PolicyMeta(list(spaces["image"].shape), list(spaces["vector"].shape), ["speed", "steering"],
-                      code_version(), source, action_map(model))
     (out / META_NAME).write_text(json.dumps(asdict(meta), indent=2))
     return out
 

@@ -29,7 +29,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from vid2sim.training.actions import ActionMapping
-from vid2sim.training.wrappers import ExpertActions, StuckTermination
+from vid2sim.training.wrappers import ExpertActions, StuckTermination, TeacherLabels
 
 
 @dataclass
@@ -43,11 +43,13 @@ class EnvSpec:
     stuck_steps: Optional[int] = None  # training only: `StuckTermination` after this many blocked steps
     expert: bool = False  # wrap in `ExpertActions` (env_method("expert_action"), needs a NavEnv)
     action_map: str = "clamp"  # outermost `ActionMapping` unless "clamp" (the envs' own contract)
+    teacher: bool = False  # wrap in `TeacherLabels` (the expert's label of every state in the infos)
 
     def make(self) -> gym.Env:
         if self.module:
             importlib.import_module(self.module)
         env = gym.make(self.env_id, **self.kwargs)
+        env = TeacherLabels(env) if self.teacher else env
         env = ExpertActions(env) if self.expert else env
         env = StuckTermination(env, self.stuck_steps) if self.stuck_steps else env
         return ActionMapping(env, self.action_map) if self.action_map != "clamp" else env
@@ -59,12 +61,12 @@ class EnvSpec:
 def specs_for_scenes(env_id: str, scene_ids: Sequence[str], n_envs: int, base_kwargs: dict[str, Any],
                      seed: int = 0, module: Optional[str] = "vid2sim.envs",
                      scene_key: str = "scenes", stuck_steps: Optional[int] = None,
-                     expert: bool = False, action_map: str = "clamp") -> list[EnvSpec]:
+                     expert: bool = False, action_map: str = "clamp", teacher: bool = False) -> list[EnvSpec]:
     """`n_envs` specs with the scenes of a registry split dealt round-robin (env i gets scene i % S)."""
     if not scene_ids:
         raise ValueError("no scenes given")
     return [EnvSpec(env_id, {**base_kwargs, scene_key: scene_ids[i % len(scene_ids)]}, seed + i, module,
-                    stuck_steps, expert, action_map)
+                    stuck_steps, expert, action_map, teacher)
             for i in range(n_envs)]
 
 

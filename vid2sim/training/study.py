@@ -1,16 +1,17 @@
 """Scene-count study: how held-out success grows with the number of training scenes.
 
-For every count N and seed s: train SAC on the registry split's nested train subset of size N
-(train-1 within train-5 within ...; the registry provides them), then evaluate on the split's
-held-out test scenes. Each (N, s) training + evaluation is one Ray task (`num_cpus` each), so a
-cluster runs them side by side. Counts larger than the train pool are clipped, with a warning.
-Output: `study.json`, a table, and `study.png` (SR and SPL against N, mean and spread over seeds).
+For every count N and seed s: train (SAC, or the distilled pixel student with `method="distill"`)
+on the registry split's nested train subset of size N (train-1 within train-5 within ...; the
+registry provides them), then evaluate on the split's held-out test scenes. Each (N, s) training +
+evaluation is one Ray task (`num_cpus` each), so a cluster runs them side by side. A count larger
+than the train pool is refused (`StudyError`, named). Scene checkouts and their sim-ready sets are
+shared by all runs (OUT/checkouts). Output: `study.json`, a table, and `study.png` (SR and SPL
+against N: mean over seeds, the seeds' spread, and the pooled 95 % bootstrap interval).
 """
 
 from __future__ import annotations
 
 import json
-import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -23,9 +24,14 @@ import numpy as np  # noqa: E402
 import ray  # noqa: E402
 
 from vid2sim.registry import Registry  # noqa: E402
-from vid2sim.training.config import SACConfig, TrainConfig  # noqa: E402
-from vid2sim.training.evaluate import EvalConfig, evaluate  # noqa: E402
+from vid2sim.training.config import DistillConfig, SACConfig, TrainConfig  # noqa: E402
+from vid2sim.training.distill import train_distill  # noqa: E402
+from vid2sim.training.evaluate import EvalConfig, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.sac import train  # noqa: E402
+
+
+class StudyError(ValueError):
+    """A study that cannot run as asked (named reason first)."""
 
 
 @dataclass
@@ -45,6 +51,10 @@ class StudyConfig:
     env_id: str = "vid2sim/PointNav-v0"  # or PRIVILEGED_ID (goal vector + ranges, no pixels)
     env_module: str = "vid2sim.envs"
     eval_max_steps: Optional[int] = None  # evaluation episode limit (None: the env's 3000)
+    method: str = "sac"  # "sac" or "distill" (TrainConfig.method)
+    distill: DistillConfig = field(default_factory=DistillConfig)
+    n_actors: int = 0  # Ray actors per training (0: its envs run inside the training's task)
+    stuck_steps: Optional[int] = None  # training only: end episodes without motion (distill default: 10)
 
 
 @dataclass
@@ -58,38 +68,39 @@ class StudyRow:
     cost: float
     train_steps: int
     train_wall_s: float
+    success: list[float] = field(default_factory=list)  # per held-out episode (for pooled intervals)
 
 
-def clip_counts(counts: list[int], available: int) -> list[int]:
-    """Counts clipped to the train pool (deduplicated, sorted); warns about each clipped one."""
-    out = []
-    for c in counts:
-        if c > available:
-            warnings.warn(f"count {c} clipped to {available}: the registry's train pool holds {available} scenes",
-                          stacklevel=2)
-        c = max(1, min(c, available))
-        if c not in out:
-            out.append(c)
-    return sorted(out)
+def check_counts(counts: list[int], available: int) -> list[int]:
+    """Counts deduplicated and sorted; `StudyError` for a count < 1 or larger than the train pool."""
+    bad = [c for c in counts if c < 1 or c > available]
+    if bad:
+        raise StudyError(f"bad_count: training-scene counts {bad} are outside 1..{available} (the registry split's "
+                         f"train pool holds {available} scenes)")
+    return sorted(set(counts))
 
 
 def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) -> StudyRow:
     """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes."""
     run_dir = Path(config.out_dir) / f"n{count}_s{seed}"
+    checkouts = str(Path(config.out_dir) / "checkouts")
     tc = TrainConfig(run_dir=str(run_dir), total_steps=config.total_steps, registry=config.registry,
                      env_id=config.env_id, env_module=config.env_module,
                      split_seed=config.split_seed, train_scenes=count, scene_ids=list(scene_ids),
-                     n_envs=config.n_envs, n_actors=0, seed=seed, env_kwargs=dict(config.env_kwargs),
-                     checkpoint_every=max(config.total_steps, 1), sac=config.sac)
-    result = train(tc, progress_bar=False)
+                     n_envs=config.n_envs, n_actors=config.n_actors, seed=seed,
+                     env_kwargs={"checkout_root": checkouts, **config.env_kwargs},
+                     checkpoint_every=max(config.total_steps, 1), sac=config.sac, method=config.method,
+                     distill=config.distill, stuck_steps=config.stuck_steps)
+    result = train_distill(tc) if config.method == "distill" else train(tc, progress_bar=False)
     report = evaluate(EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
-                                 trials=config.trials, obstacles=config.obstacles, env_id=config.env_id,
-                                 max_steps=config.eval_max_steps,
-                                 checkout_root=str(Path(config.out_dir) / "checkouts")))
+                                 trials=config.trials, obstacles=config.obstacles,
+                                 env_id=None if config.method == "distill" else config.env_id,
+                                 max_steps=config.eval_max_steps, checkout_root=checkouts))
     (run_dir / "eval.json").write_text(report.to_json())
     m = report.metrics
+    success = [float(r["success"]) for r in report.records]
     return StudyRow(count, seed, str(run_dir), list(scene_ids), m["sr"].mean, m["spl"].mean, m["cost"].mean,
-                    result.num_timesteps, result.wall_s)
+                    result.num_timesteps, result.wall_s, success)
 
 
 _run_remote = ray.remote(run_one)
@@ -100,7 +111,7 @@ def run_study(config: StudyConfig) -> list[StudyRow]:
     out = Path(config.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     pool = Registry(config.registry).split(seed=config.split_seed)
-    counts = clip_counts(config.counts, len(pool.train))
+    counts = check_counts(config.counts, len(pool.train))
     split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
     remote = _run_remote.options(num_cpus=config.num_cpus_per_run)
     futures = [remote.remote(config, n, s, split.train_subsets[n]) for n in counts for s in range(config.seeds)]
@@ -113,13 +124,18 @@ def run_study(config: StudyConfig) -> list[StudyRow]:
 
 
 def aggregate(rows: list[StudyRow]) -> dict[str, dict[str, float]]:
-    """Per count: mean and std over seeds of SR and SPL."""
+    """Per count: mean and std over seeds of SR and SPL, and SR's 95 % bootstrap interval over the
+    pooled held-out episodes of all seeds (when the rows carry them)."""
     out = {}
     for n in sorted({r.count for r in rows}):
         sel = [r for r in rows if r.count == n]
         out[str(n)] = {"sr_mean": float(np.mean([r.sr for r in sel])), "sr_std": float(np.std([r.sr for r in sel])),
                        "spl_mean": float(np.mean([r.spl for r in sel])),
                        "spl_std": float(np.std([r.spl for r in sel])), "seeds": len(sel)}
+        pooled = np.array([s for r in sel for s in r.success], float)
+        if len(pooled):
+            ci = bootstrap_ci(pooled)
+            out[str(n)].update(sr_ci_low=ci.low, sr_ci_high=ci.high, episodes=len(pooled))
     return out
 
 

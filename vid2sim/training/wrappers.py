@@ -12,6 +12,12 @@ looks safer to a young critic than driving past walls (-10 per crash), and SAC l
 (observed: speed < 0, i.e. stopped, on every held-out episode after 10-40k steps).
 
 `ExpertActions`: the scripted expert's action on demand (warm-up demonstrations for SAC).
+
+`TeacherLabels`: the scripted expert labels every state the env reaches, whoever drives
+(teacher-student distillation): `info["teacher_action"]` [2] and `info["teacher_stuck"]` after
+`reset` and after every step that does not end the episode. `teacher_stuck` is True while the
+expert is in its blocked-pose recovery (alternating full lock): those labels depend on the
+expert's own history, not on what the camera sees, and the learner drops them.
 """
 
 from __future__ import annotations
@@ -52,6 +58,36 @@ class StuckTermination(gym.Wrapper):
             reward += u.config.reward.failure
             terminated = True
             info = {**info, "end": STUCK, "nav_episode": u.record(STUCK)}
+        return obs, reward, terminated, truncated, info
+
+
+class TeacherError(RuntimeError):
+    """The teacher cannot act in this env (no A* expert path: not a vid2sim NavEnv)."""
+
+
+class TeacherLabels(gym.Wrapper):
+    """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
+
+    def __init__(self, env: gym.Env) -> None:
+        super().__init__(env)
+        if not hasattr(env.unwrapped, "expert_path"):
+            raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
+                               "path (the scripted teacher acts only in vid2sim navigation envs)")
+        self.expert = PurePursuitExpert()
+
+    def _label(self, info: dict) -> dict:
+        action = self.expert.act(self.env)
+        return {**info, "teacher_action": action, "teacher_stuck": self.expert.stuck > 0}
+
+    def reset(self, **kwargs: Any):
+        obs, info = self.env.reset(**kwargs)
+        self.expert.reset(self.env)
+        return obs, self._label(info)
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if not (terminated or truncated):
+            info = self._label(info)
         return obs, reward, terminated, truncated, info
 
 

@@ -1,0 +1,167 @@
+"""Teacher-student distillation on a tiny budget: it runs, saves, resumes, exports the trained student,
+evaluates; the student's preprocessing and augmentation; named errors for bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import ray
+import torch
+
+from tests.conftest import PROJECT_ROOT
+from vid2sim.training.config import DistillConfig, TrainConfig
+from vid2sim.training.distill import STUDENT_NAME, Batch, Dataset, DistillError, scene_groups, train_distill
+from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
+from vid2sim.training.export import NavPolicy, export_policy
+from vid2sim.training.rollouts import init_ray
+from vid2sim.training.student import StudentConfig, StudentPolicy, random_shift
+from vid2sim.training.wrappers import TeacherError, TeacherLabels
+
+TINY = StudentConfig(frames=2, pool=2, channels=(4, 4, 8, 8), frame_dim=16, vector_dim=8, hidden=16)
+
+
+@pytest.fixture(scope="module")
+def street_registry(tmp_path_factory):
+    from benchmarks.street_registry import build
+    return build(tmp_path_factory.mktemp("streets"), [1, 2, 3]).root
+
+
+def tiny_config(registry, run_dir, total_steps: int, n_actors: int = 0) -> TrainConfig:
+    # exact fidelity while training: the fast path would first fit a sim-ready set per scene (~1 min)
+    return TrainConfig(run_dir=str(run_dir), total_steps=total_steps, registry=str(registry), n_envs=2,
+                       n_actors=n_actors, seed=3, method="distill", stuck_steps=10,
+                       env_kwargs={"training": True, "fidelity": "exact"},
+                       distill=DistillConfig(steps_per_round=60, updates_per_round=4, batch_size=8,
+                                             train_max_steps=40, student=TINY))
+
+
+@pytest.fixture(scope="module")
+def distilled(street_registry, tmp_path_factory):
+    run = tmp_path_factory.mktemp("distill") / "run"
+    first = train_distill(tiny_config(street_registry, run, 120))
+    return run, first
+
+
+def test_runs_saves_and_logs(distilled):
+    run, result = distilled
+    assert result.num_timesteps == 120 and len(result.history) == 2
+    assert [row["beta"] for row in result.history] == [1.0, 0.5]  # round 0 is behaviour cloning
+    assert all(row["labels"] + row["dropped_stuck"] == 60 for row in result.history)
+    assert json.loads((run / "config.json").read_text())["method"] == "distill"
+    assert json.loads((run / "student.json").read_text())["student"]["channels"] == [4, 4, 8, 8]
+    for name in ("round_000.npz", "round_001.npz"):
+        shard = Batch.load(run / "data" / name)
+        assert shard.frames.dtype == np.uint8 and shard.frames.shape[1:] == (2, 3, 36, 64)
+        assert np.abs(shard.actions).max() <= 1.0 and len(shard.actions) == len(shard.vectors)
+    assert (run / STUDENT_NAME).is_file() and (run / "checkpoints" / "last.pt").is_file()
+    assert any((run / "tb").rglob("events.out.tfevents.*"))
+
+
+def test_resume_goes_on_at_the_next_round(distilled, street_registry):
+    run, first = distilled
+    shard0 = (run / "data" / "round_000.npz").read_bytes()
+    resumed = train_distill(tiny_config(street_registry, run, 180), resume=True)
+    assert resumed.num_timesteps == 180
+    assert [row["round"] for row in resumed.history] == [0, 1, 2]
+    assert resumed.history[:2] == first.history
+    assert (run / "data" / "round_000.npz").read_bytes() == shard0  # shards are written once
+    assert resumed.history[2]["dataset"] == sum(row["labels"] for row in resumed.history)
+
+
+def test_exported_student_equals_the_trained_one(distilled, tmp_path):
+    run, _ = distilled
+    student = load_student(run / STUDENT_NAME)
+    out = export_policy(run, tmp_path / "export")
+    meta = json.loads((out / "policy.json").read_text())
+    assert meta["method"] == "distill" and meta["architecture"]["frames"] == 2
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (3, 6, 3, 72, 128), dtype=np.uint8)
+    vector = rng.normal(size=(3, 6, 2)).astype(np.float32)
+    with torch.no_grad():
+        expected = student(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
+    for backend in ("onnx", "torch"):
+        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image, vector), expected, atol=1e-5)
+
+
+def test_eval_policy_reads_the_student_and_checks_its_observation(distilled, street_registry, tmp_path):
+    run, _ = distilled
+    report = evaluate(EvalConfig(registry=str(street_registry), policy=str(run), trials=1, max_steps=20,
+                                 checkout_root=str(tmp_path)))
+    assert report.episodes >= 1 and 0.0 <= report.metrics["sr"].mean <= 1.0
+    with pytest.raises(ObservationMismatch, match="observation_mismatch"):
+        evaluate(EvalConfig(registry=str(street_registry), policy=str(run), trials=1, max_steps=5,
+                            variant="depth", checkout_root=str(tmp_path)))
+
+
+def test_preprocessed_inputs_give_the_deployed_actions():
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
+    image = torch.randint(0, 256, (4, 6, 3, 72, 128), dtype=torch.uint8)
+    vector = torch.randn(4, 6, 2)
+    stored = student.preprocess(image).numpy().astype(np.uint8)  # what the learner keeps
+    assert stored.shape == (4, *student.input_shape)
+    with torch.no_grad():
+        np.testing.assert_array_equal(student.act(torch.from_numpy(stored), vector).numpy(),
+                                      student(image, vector).numpy())
+    expected = image[:, -2:].float().reshape(8, 3, 36, 2, 64, 2).mean(dim=(3, 5)).round().reshape(4, 2, 3, 36, 64)
+    np.testing.assert_array_equal(stored, expected.numpy().astype(np.uint8))
+
+
+def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():
+    frames = torch.arange(2 * 2 * 1 * 6 * 8, dtype=torch.float32).reshape(2, 2, 1, 6, 8)
+    assert torch.equal(random_shift(frames, 0), frames)
+    out = random_shift(frames, 2, torch.Generator().manual_seed(1))
+    padded = torch.nn.functional.pad(frames.reshape(2, 2, 6, 8), (2, 2, 2, 2), mode="replicate")
+    for b in range(2):
+        hits = [(dy, dx) for dy in range(5) for dx in range(5)
+                if torch.equal(out[b].reshape(2, 6, 8), padded[b, :, dy:dy + 6, dx:dx + 8])]
+        assert len(hits) == 1  # one offset, shared by both frames of the sample
+
+
+def test_dataset_cap_drops_the_oldest_rounds():
+    def batch(n, value):
+        return Batch(np.full((n, 1, 1, 2, 2), value, np.uint8), np.zeros((n, 6, 2), np.float32),
+                     np.full((n, 2), value / 10, np.float32))
+    data = Dataset(max_samples=25)
+    for k in range(4):
+        data.add(batch(10, k))
+    arrays = data.arrays()
+    assert len(arrays.actions) == 25 and arrays.frames[0, 0, 0, 0, 0] == 1 and arrays.frames[-1, 0, 0, 0, 0] == 3
+
+
+def test_scene_groups_use_every_scene():
+    assert scene_groups(["a", "b", "c", "d", "e"], 2) == [["a", "c", "e"], ["b", "d"]]
+    assert scene_groups(["a"], 3) == [["a"], ["a"], ["a"]]
+    with pytest.raises(DistillError, match="no_scenes"):
+        scene_groups([], 2)
+
+
+def test_a_teacher_that_cannot_act_is_a_named_error():
+    import tests.training_envs  # noqa: F401  (registers tests/GoalSeek-v0, which has no A* path)
+    with pytest.raises(TeacherError, match="teacher_unavailable"):
+        TeacherLabels(gym.make("tests/GoalSeek-v0"))
+
+
+def test_bad_distill_settings_are_refused():
+    with pytest.raises(ValueError, match="steps_per_round"):
+        DistillConfig(steps_per_round=0)
+    with pytest.raises(ValueError, match="beta_decay"):
+        DistillConfig(beta_decay=1.5)
+    with pytest.raises(ValueError, match="frames"):
+        StudentConfig(frames=7)
+    with pytest.raises(ValueError, match="method"):
+        TrainConfig(run_dir="x", total_steps=10, method="ppo")
+
+
+def test_collection_on_ray_actors(street_registry, tmp_path):
+    path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
+    init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})
+    try:
+        result = train_distill(tiny_config(street_registry, tmp_path / "ray-run", 60, n_actors=2))
+    finally:
+        ray.shutdown()
+    assert result.num_timesteps == 60 and result.history[0]["labels"] > 0

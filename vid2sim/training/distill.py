@@ -1,0 +1,298 @@
+"""Teacher-student distillation (DAgger) of the pixel policy from the scripted A* expert.
+
+The student (`training/student.py`) sees exactly the deployable observation: camera frames and
+the goal vector. The teacher (`envs/expert.py`, pure pursuit on the episode's A* path around the
+obstacles, with its walkable-map arc check) sees the map and the path. `train_distill(config)`
+does, in order:
+  1. resolve the scene ids (the registry split's nested train subset) and write the run folder
+     (config.json, scenes.json, code_version.txt, student.json);
+  2. build the envs with `TeacherLabels` (the teacher labels every state, whoever drives) on Ray
+     actors (`n_actors >= 1`) or in-process; the scenes are dealt to the envs in groups;
+  3. for each round k: collect `steps_per_round` env steps; each episode is driven by the
+     teacher with probability beta_k = max(min_beta, beta0 * beta_decay^k), else by the student
+     (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
+     the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
+  4. fit the student on the aggregated dataset: `updates_per_round` Adam steps of MSE to the
+     labels, on batches with random-shift augmentation (DrQ), warm-started from the last round;
+  5. write the round's data shard (data/round_K.npz, written once) and checkpoints/last.pt (student,
+     optimizer, round, history), log to TensorBoard (tb/) and to the returned history.
+Resume (`resume=True`) reloads the shards and checkpoints/last.pt and goes on at the next round.
+The final student is RUN/student.pt; `vid2sim eval policy --policy RUN` and `export_policy` read it.
+
+`imitation`'s DAgger is not used: its releases pin gymnasium ~0.29 and stable-baselines3 ~2.2,
+older than this project's gymnasium 1.4 / SB3 2.9 (and its trainer drives one env in-process).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from stable_baselines3.common.vec_env import VecEnv
+from torch.utils.tensorboard import SummaryWriter
+
+from vid2sim.training.config import TrainConfig
+from vid2sim.training.rollouts import EnvSpec
+from vid2sim.training.sac import make_vec_env, resolve_scenes, write_run_folder
+from vid2sim.training.student import StudentPolicy, random_shift
+
+STUDENT_NAME = "student.pt"
+
+
+class DistillError(ValueError):
+    """A distillation run that cannot start (named reason first)."""
+
+
+@dataclass
+class Batch:
+    """Labelled states of one round: preprocessed frames, goal vectors, teacher actions."""
+
+    frames: np.ndarray  # uint8 [N, frames, C, h, w]
+    vectors: np.ndarray  # float32 [N, 6, 2]
+    actions: np.ndarray  # float32 [N, 2]
+
+    def save(self, path: Path) -> None:
+        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions)
+
+    @classmethod
+    def load(cls, path: Path) -> "Batch":
+        with np.load(path) as z:
+            return cls(z["frames"], z["vectors"], z["actions"])
+
+
+class Dataset:
+    """The aggregated DAgger dataset, capped at `max_samples` (the oldest rows go first)."""
+
+    def __init__(self, max_samples: int) -> None:
+        self.max_samples = max_samples
+        self.parts: list[Batch] = []
+
+    def add(self, batch: Batch) -> None:
+        if len(batch.actions):
+            self.parts.append(batch)
+        while len(self) - len(self.parts[0].actions) >= self.max_samples and len(self.parts) > 1:
+            self.parts.pop(0)
+
+    def __len__(self) -> int:
+        return sum(len(p.actions) for p in self.parts)
+
+    def arrays(self) -> Batch:
+        keep = min(len(self), self.max_samples)
+        cat = [np.concatenate([getattr(p, k) for p in self.parts])[-keep:] for k in ("frames", "vectors", "actions")]
+        return Batch(*cat)
+
+
+# ------------------------------------------------------------------ set-up
+def beta(config: TrainConfig, round_index: int) -> float:
+    d = config.distill
+    return max(d.min_beta, d.beta0 * d.beta_decay ** round_index)
+
+
+def scene_groups(scene_ids: Sequence[str], n_envs: int) -> list[list[str]]:
+    """Scenes dealt to `n_envs` envs: env i gets scenes i, i + n, i + 2n, ... (all scenes used when
+    there are more scenes than envs; with fewer, they repeat round-robin)."""
+    if not scene_ids:
+        raise DistillError("no_scenes: the run has no training scenes (empty registry split?)")
+    if len(scene_ids) <= n_envs:
+        return [[scene_ids[i % len(scene_ids)]] for i in range(n_envs)]
+    return [list(scene_ids[i::n_envs]) for i in range(n_envs)]
+
+
+def env_specs(config: TrainConfig) -> list[EnvSpec]:
+    base = dict(config.env_kwargs)
+    base.setdefault("registry", config.registry)
+    base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))
+    if config.distill.train_max_steps:
+        base.setdefault("max_episode_steps", config.distill.train_max_steps)
+    return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
+                    config.stuck_steps, teacher=True)
+            for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
+
+
+# ------------------------------------------------------------------ collection
+@dataclass
+class RoundStats:
+    steps: int = 0
+    labels: int = 0
+    dropped_stuck: int = 0
+    episodes: dict[str, list[bool]] = field(default_factory=lambda: {"teacher": [], "student": []})
+    wall_s: float = 0.0
+
+    def success_rate(self, driver: str) -> Optional[float]:
+        """Success rate of the round's finished episodes driven by `driver` (None: none finished)."""
+        ends = self.episodes[driver]
+        return float(np.mean(ends)) if ends else None
+
+
+class Collector:
+    """Steps a VecEnv of `TeacherLabels` envs, choosing the driver per episode; keeps the labelled states."""
+
+    def __init__(self, env: VecEnv, student: StudentPolicy, seed: int) -> None:
+        self.env, self.student = env, student
+        self.rng = np.random.default_rng(seed)
+        self.obs = env.reset()
+        self.labels = [dict(info) for info in env.reset_infos]
+        self.teacher_drives = np.ones(env.num_envs, bool)
+
+    def _check_labels(self) -> None:
+        missing = [i for i, info in enumerate(self.labels) if "teacher_action" not in info]
+        if missing:
+            raise DistillError(f"teacher_unavailable: envs {missing} returned no teacher label")
+
+    def collect(self, n_steps: int, beta_k: float, drop_stuck: bool) -> tuple[Batch, RoundStats]:
+        stats, t0 = RoundStats(), time.perf_counter()
+        self._check_labels()
+        self.teacher_drives = self.rng.random(self.env.num_envs) < beta_k  # a new round redraws the drivers
+        frames, vectors, actions = [], [], []
+        for _ in range(max(1, n_steps // self.env.num_envs)):
+            teacher = np.stack([np.asarray(info["teacher_action"], np.float32) for info in self.labels])
+            stuck = np.array([bool(info.get("teacher_stuck", False)) for info in self.labels])
+            with torch.no_grad():
+                image = torch.from_numpy(self.obs["image"])
+                pre = self.student.preprocess(image)
+                student = self.student.act(pre, torch.from_numpy(self.obs["vector"])).numpy()
+            keep = ~stuck if drop_stuck else np.ones(len(stuck), bool)
+            frames.append(pre.numpy().astype(np.uint8)[keep])
+            vectors.append(self.obs["vector"][keep].astype(np.float32))
+            actions.append(teacher[keep])
+            stats.dropped_stuck += int((~keep).sum())
+            act = np.where(self.teacher_drives[:, None], teacher, student).astype(np.float32)
+            self.obs, _, dones, infos = self.env.step(act)
+            stats.steps += self.env.num_envs
+            for i, info in enumerate(infos):
+                if dones[i]:
+                    driver = "teacher" if self.teacher_drives[i] else "student"
+                    stats.episodes[driver].append(info.get("end") == "success")
+                    self.teacher_drives[i] = self.rng.random() < beta_k
+                    self.labels[i] = dict(self.env.reset_infos[i])
+                else:
+                    self.labels[i] = info
+            self._check_labels()
+        batch = Batch(np.concatenate(frames), np.concatenate(vectors), np.concatenate(actions))
+        stats.labels, stats.wall_s = len(batch.actions), time.perf_counter() - t0
+        return batch, stats
+
+
+# ------------------------------------------------------------------ learning
+def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Batch, updates: int, batch_size: int,
+        shift_pad: int, rng: np.random.Generator) -> dict[str, float]:
+    """`updates` Adam steps of MSE to the teacher's labels on random-shifted batches."""
+    student.train()
+    n, losses, t0 = len(data.actions), [], time.perf_counter()
+    frames, vectors, actions = (torch.from_numpy(data.frames), torch.from_numpy(data.vectors),
+                                torch.from_numpy(data.actions))
+    gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
+    for _ in range(updates):
+        idx = torch.from_numpy(rng.integers(0, n, batch_size))
+        x = random_shift(frames[idx].float(), shift_pad, gen)
+        loss = F.mse_loss(student.act(x, vectors[idx]), actions[idx])
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        losses.append(loss.item())
+    student.eval()
+    wall = time.perf_counter() - t0
+    return {"loss": float(np.mean(losses[-max(1, updates // 10):])), "fit_s": wall,
+            "samples_per_s": updates * batch_size / max(wall, 1e-9)}
+
+
+# ------------------------------------------------------------------ the loop
+@dataclass
+class DistillResult:
+    run_dir: Path
+    num_timesteps: int
+    history: list[dict[str, float]]
+    wall_s: float
+
+
+def make_student(config: TrainConfig, env: VecEnv) -> StudentPolicy:
+    space = env.observation_space
+    if not hasattr(space, "spaces") or "image" not in space.spaces:
+        raise DistillError(f"observation_mismatch: the student needs the Dict image + vector observation, "
+                           f"env {config.env_id} gives {space}")
+    torch.manual_seed(config.seed)
+    return StudentPolicy(config.distill.student, space["image"].shape, space["vector"].shape).eval()
+
+
+def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
+                    num_timesteps: int, history: list[dict], rng: np.random.Generator) -> None:
+    ckpt = {"student": student.checkpoint(), "optimizer": optimizer.state_dict(), "round": round_index,
+            "num_timesteps": num_timesteps, "history": history, "rng": rng.bit_generator.state}
+    tmp = run / "checkpoints" / "last.pt.tmp"
+    torch.save(ckpt, tmp)
+    tmp.replace(run / "checkpoints" / "last.pt")
+
+
+def load_checkpoint(run: Path) -> dict:
+    path = run / "checkpoints" / "last.pt"
+    if not path.is_file():
+        raise DistillError(f"no_checkpoint: cannot resume {run}: {path} does not exist")
+    return torch.load(path, map_location="cpu", weights_only=False)
+
+
+def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] = None) -> DistillResult:
+    """Train (or resume) one distillation run; see the module docstring for the steps."""
+    d = config.distill
+    if d.threads:
+        torch.set_num_threads(d.threads)
+    config.scene_ids = resolve_scenes(config)
+    run = write_run_folder(config)
+    (run / "data").mkdir(exist_ok=True)
+    env = make_vec_env(env_specs(config), config.n_actors)
+    writer = SummaryWriter(str(run / "tb" / "distill"))
+    try:
+        student = make_student(config, env)
+        (run / "student.json").write_text(json.dumps({"student": d.student.to_dict(),
+                                                      "image_shape": list(student.image_shape),
+                                                      "vector_shape": list(student.vector_shape)}, indent=2))
+        optimizer = torch.optim.Adam(student.parameters(), lr=d.learning_rate)
+        rng = np.random.default_rng(config.seed)
+        dataset, history, start, done = Dataset(d.max_samples), [], 0, 0
+        if resume:
+            ckpt = load_checkpoint(run)
+            student.load_state_dict(ckpt["student"]["state_dict"])
+            optimizer.load_state_dict(ckpt["optimizer"])
+            rng.bit_generator.state = ckpt["rng"]
+            start, done, history = ckpt["round"] + 1, ckpt["num_timesteps"], ckpt["history"]
+            for k in range(start):
+                dataset.add(Batch.load(run / "data" / f"round_{k:03d}.npz"))
+        collector = Collector(env, student, config.seed + 7919 * start)
+        rounds = max(1, math.ceil(config.total_steps / d.steps_per_round))
+        t_start = time.perf_counter()
+        for k in range(start, rounds):
+            beta_k = beta(config, k)
+            batch, stats = collector.collect(d.steps_per_round, beta_k, d.drop_stuck)
+            batch.save(run / "data" / f"round_{k:03d}.npz")
+            dataset.add(batch)
+            done += stats.steps
+            fitted = fit(student, optimizer, dataset.arrays(), d.updates_per_round, d.batch_size, d.shift_pad, rng)
+            row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
+                   "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
+                   "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
+                   "student_episodes": len(stats.episodes["student"]), **fitted}
+            history.append(row)
+            for key, value in row.items():
+                if key != "round" and value is not None:
+                    writer.add_scalar(f"distill/{key}", value, done)
+            writer.flush()
+            save_checkpoint(run, student, optimizer, k, done, history, rng)
+            if log:
+                log(row)
+        student.save(run / STUDENT_NAME)
+        return DistillResult(run, done, history, time.perf_counter() - t_start)
+    finally:
+        writer.close()
+        env.close()
+
+
+def summary(history: list[dict]) -> dict[str, Any]:
+    """The last round's figures (what `vid2sim train --method distill` prints)."""
+    return {k: (round(v, 4) if isinstance(v, float) else v) for k, v in (history[-1] if history else {}).items()}
+

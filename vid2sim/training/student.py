@@ -1,0 +1,150 @@
+"""The pixel student: the deployable observation in, the envs' action out.
+
+Input (exactly what `vid2sim/PointNav-v0` observes and `NavPolicy` feeds): `image` uint8
+[B, 6, C, 72, 128] (6 stacked frames, oldest first) and `vector` float [B, 6, 2] (distance to the
+goal in m, heading to the goal / pi). Output: [B, 2] (speed, steering) in [-1, 1], the envs'
+contract (speed <= 0 stops).
+
+Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the export):
+- the last `frames` frames only (default 2: the current view and one 0.2 s back, for motion),
+  average-pooled by `pool` (default 2: 36 x 64 pixels), rounded to integers so the stored
+  training inputs and the deployed graph see the same numbers;
+- one small conv encoder shared by the frames (weights shared, features concatenated), about
+  3 MFLOP per frame at 36 x 64, so the learner fits ~3,000 samples per second on 2 threads;
+- the whole goal-vector history (12 numbers, scaled as `NavCNN`) through a small MLP;
+- an MLP head with `tanh`.
+`preprocess` (select + pool) and `act` (the network) are separate so the learner stores the
+small preprocessed frames and augments them (random shifts) before `act`; `forward` is
+`act(preprocess(...))`, the graph that is exported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from vid2sim.training.policy import VECTOR_SCALE
+
+STACK = 6  # frames in the env observation
+
+
+@dataclass
+class StudentConfig:
+    """Encoder and input size of the pixel student (see the module docs)."""
+
+    frames: int = 2  # most recent frames the student looks at (1..6)
+    pool: int = 2  # average-pooling factor of the 72 x 128 frames (1: full size)
+    channels: tuple[int, ...] = (16, 32, 32, 32)  # conv widths; first conv 5x5 stride 2, then 3x3 strides 2, 2, 1
+    frame_dim: int = 128  # features per frame
+    vector_dim: int = 64  # features of the goal-vector history
+    hidden: int = 256  # head width
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.frames <= STACK:
+            raise ValueError(f"student frames must be in 1..{STACK}, got {self.frames}")
+        if self.pool < 1:
+            raise ValueError(f"student pool must be >= 1, got {self.pool}")
+        self.channels = tuple(int(c) for c in self.channels)
+        if len(self.channels) != 4:
+            raise ValueError(f"student channels must list 4 conv widths, got {list(self.channels)}")
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def frame_encoder(in_channels: int, widths: tuple[int, ...]) -> nn.Sequential:
+    c1, c2, c3, c4 = widths
+    return nn.Sequential(
+        nn.Conv2d(in_channels, c1, 5, stride=2, padding=2), nn.ReLU(),
+        nn.Conv2d(c1, c2, 3, stride=2, padding=1), nn.ReLU(),
+        nn.Conv2d(c2, c3, 3, stride=2, padding=1), nn.ReLU(),
+        nn.Conv2d(c3, c4, 3, stride=1, padding=1), nn.ReLU(),
+        nn.Flatten())
+
+
+class StudentPolicy(nn.Module):
+    """Last frames + goal-vector history -> (speed, steering) in [-1, 1]."""
+
+    def __init__(self, config: StudentConfig, image_shape: tuple[int, ...], vector_shape: tuple[int, ...]):
+        super().__init__()
+        self.config = config
+        self.image_shape, self.vector_shape = tuple(image_shape), tuple(vector_shape)  # [6, C, H, W], [6, 2]
+        stack, channels, height, width = self.image_shape
+        if stack < config.frames:
+            raise ValueError(f"the observation stacks {stack} frames, the student wants {config.frames}")
+        self.channels = channels
+        self.encoder = frame_encoder(channels, config.channels)
+        with torch.no_grad():
+            probe = self.preprocess(torch.zeros(1, *self.image_shape, dtype=torch.uint8))
+            n_flat = self.encoder(probe[:, 0].float()).shape[1]
+        self.frame_head = nn.Sequential(nn.Linear(n_flat, config.frame_dim), nn.ReLU())
+        n_vec = int(torch.tensor(self.vector_shape).prod())
+        self.register_buffer("vector_scale", torch.tensor(VECTOR_SCALE, dtype=torch.float32).repeat(n_vec // 2))
+        self.vector_head = nn.Sequential(nn.Linear(n_vec, config.vector_dim), nn.ReLU())
+        self.head = nn.Sequential(nn.Linear(config.frames * config.frame_dim + config.vector_dim, config.hidden),
+                                  nn.ReLU(), nn.Linear(config.hidden, 2))
+
+    @property
+    def input_shape(self) -> tuple[int, int, int, int]:
+        """Shape of one preprocessed sample [frames, C, h, w] (what the learner stores)."""
+        _, c, h, w = self.image_shape
+        p = self.config.pool
+        return self.config.frames, c, h // p, w // p
+
+    def preprocess(self, image: torch.Tensor) -> torch.Tensor:
+        """uint8/float [B, 6, C, H, W] -> float [B, frames, C, h, w] of integers in 0..255."""
+        x = image[:, -self.config.frames:].float()
+        b, k, c, h, w = x.shape
+        if self.config.pool > 1:
+            x = F.avg_pool2d(x.reshape(b * k, c, h, w), self.config.pool).reshape(b, k, c, h // self.config.pool,
+                                                                                w // self.config.pool)
+        return torch.round(x)
+
+    def act(self, frames: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
+        """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> actions [B, 2]."""
+        b, k = frames.shape[:2]
+        x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
+        per_frame = self.frame_head(self.encoder(x)).reshape(b, -1)  # [B, frames * frame_dim]
+        vec = self.vector_head(vector.float().flatten(1) * self.vector_scale)
+        return torch.tanh(self.head(torch.cat([per_frame, vec], dim=1)))
+
+    def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
+        return self.act(self.preprocess(image), vector)
+
+    # ------------------------------------------------------------------ persistence
+    def checkpoint(self) -> dict:
+        return {"config": self.config.to_dict(), "image_shape": list(self.image_shape),
+                "vector_shape": list(self.vector_shape), "state_dict": self.state_dict()}
+
+    @classmethod
+    def from_checkpoint(cls, ckpt: dict) -> "StudentPolicy":
+        student = cls(StudentConfig(**ckpt["config"]), tuple(ckpt["image_shape"]), tuple(ckpt["vector_shape"]))
+        student.load_state_dict(ckpt["state_dict"])
+        return student.eval()
+
+    def save(self, path) -> None:
+        torch.save(self.checkpoint(), path)
+
+    @classmethod
+    def load(cls, path) -> "StudentPolicy":
+        return cls.from_checkpoint(torch.load(path, map_location="cpu", weights_only=False))
+
+
+def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """DrQ's augmentation: replicate-pad by `pad` pixels and crop back at a random offset per sample.
+
+    frames [B, K, C, h, w] -> [B, K, C, h, w]; the K frames of one sample share the offset."""
+    if pad <= 0:
+        return frames
+    b, k, c, h, w = frames.shape
+    padded = F.pad(frames.reshape(b, k * c, h, w), (pad, pad, pad, pad), mode="replicate")
+    dx = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    dy = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    rows = (dy[:, None] + torch.arange(h)[None]).reshape(b, 1, h, 1)  # [B, 1, h, 1]
+    cols = (dx[:, None] + torch.arange(w)[None]).reshape(b, 1, 1, w)  # [B, 1, 1, w]
+    batch = torch.arange(b).reshape(b, 1, 1, 1)
+    chan = torch.arange(k * c).reshape(1, k * c, 1, 1)
+    return padded[batch, chan, rows, cols].reshape(b, k, c, h, w)
