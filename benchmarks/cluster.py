@@ -15,8 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import subprocess
 import sys
 import time
@@ -24,6 +22,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
+
+from common import Run, add_run_args  # noqa: E402  (benchmarks/common.py)
 
 # Measured per 10.5 s GoPro clip, fast preset at 160 px, 2 vCPUs (benchmarks/pipeline.py gopro).
 STAGE_SECONDS = {"decode": 12, "masks": 4, "sfm": 59, "metric": 0.7, "recon": 132, "meshing": 16}
@@ -63,12 +63,24 @@ def measure(workers: int, clips: int, tmp: Path) -> dict:
         return json.loads(out.read_text())
 
 
-def paper_estimate(clips: int = 1000) -> str:
-    """Throughput and cost of `clips` ten-second clips from the measured 2-vCPU stage times."""
+def estimate_figures(clips: int = 1000) -> dict:
+    """The paper estimate's figures (paper_estimate)."""
     name, vcpus, price = INSTANCE
     per_clip = sum(STAGE_SECONDS.values()) * 10 / 10.5  # s on 2 vCPUs, scaled to 10 s of video
     vcpu_hours = per_clip * 2 * clips / 3600
     instance_hours = vcpu_hours / vcpus
+    return {"clips": clips, "seconds per clip on 2 vCPUs": per_clip, "vCPU-hours": vcpu_hours,
+            f"{name} instance-hours": instance_hours, "on-demand USD": instance_hours * price,
+            "wall min with 20 workers": instance_hours / 20 * 60,
+            "clips per hour (20 workers)": 8 * 20 * 3600 / per_clip}
+
+
+def paper_estimate(clips: int = 1000) -> str:
+    """Throughput and cost of `clips` ten-second clips from the measured 2-vCPU stage times."""
+    name, _, price = INSTANCE
+    f = estimate_figures(clips)
+    per_clip, vcpu_hours = f["seconds per clip on 2 vCPUs"], f["vCPU-hours"]
+    instance_hours = f[f"{name} instance-hours"]
     return (f"paper estimate: {clips} x 10 s clips, fast preset: {per_clip:.0f} s per clip on 2 vCPUs "
             f"-> {vcpu_hours:.0f} vCPU-hours -> {instance_hours:.1f} {name} instance-hours "
             f"(~${instance_hours * price:.0f} on demand at ${price}/h); with 20 workers "
@@ -81,6 +93,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--clips", type=int, default=4)
     p.add_argument("--drive", nargs=5, metavar=("ADDRESS", "WORK", "REGISTRY", "CLIPS", "OUT"))
+    add_run_args(p)
     args = p.parse_args()
     if args.drive:
         a = args.drive
@@ -88,16 +101,22 @@ def main() -> None:
         return
     import tempfile
 
-    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-          f"load {os.getloadavg()[0]:.1f}; command: .venv/bin/python benchmarks/cluster.py --clips {args.clips}")
-    with tempfile.TemporaryDirectory(prefix="v2sbench-") as tmp:
-        res = {n: measure(n - 1, args.clips, Path(tmp)) for n in (1, 2)}
-    for n, r in res.items():
-        print(f"{n} node(s), 1 CPU each: {args.clips} clips in {r['wall_s']:.1f} s "
-              f"({r['ok']} committed, stages ran on {r['nodes']} node(s))")
-    print(f"ratio 2 nodes / 1 node: {res[2]['wall_s'] / res[1]['wall_s']:.2f} "
-          "(both nodes share this machine's cores: shows spreading, not hardware scaling)")
-    print(paper_estimate())
+    with Run("cluster", args, config={"stage_seconds": STAGE_SECONDS, "instance": INSTANCE}) as run:
+        with tempfile.TemporaryDirectory(prefix="v2sbench-") as tmp:
+            res = {n: measure(n - 1, args.clips, Path(tmp)) for n in (1, 2)}
+        for n, r in res.items():
+            run.record_all(f"{n} node(s), 1 CPU each, {args.clips} clips",
+                           {"wall_s": r["wall_s"], "committed": r["ok"], "nodes used": r["nodes"]}, {"wall_s": "s"})
+            print(f"{n} node(s), 1 CPU each: {args.clips} clips in {r['wall_s']:.1f} s "
+                  f"({r['ok']} committed, stages ran on {r['nodes']} node(s))")
+        run.record(f"ratio 2 nodes / 1 node, {args.clips} clips", "wall ratio", res[2]["wall_s"] / res[1]["wall_s"])
+        print(f"ratio 2 nodes / 1 node: {res[2]['wall_s'] / res[1]['wall_s']:.2f} "
+              "(both nodes share this machine's cores: shows spreading, not hardware scaling)")
+        est = estimate_figures()
+        run.record_all("paper estimate, 1000 x 10 s clips, fast preset", est,
+                       {"seconds per clip on 2 vCPUs": "s", "vCPU-hours": "h", f"{INSTANCE[0]} instance-hours": "h",
+                        "on-demand USD": "USD", "wall min with 20 workers": "min"})
+        print(paper_estimate())
 
 
 if __name__ == "__main__":

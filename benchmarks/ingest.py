@@ -22,6 +22,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from common import Run, add_run_args  # noqa: E402  (benchmarks/common.py)
 from vid2sim.factory.ingest import decode, masks  # noqa: E402
 from vid2sim.factory.ingest.privacy import FaceBlurrer  # noqa: E402
 
@@ -33,11 +34,24 @@ def cpu() -> float:
     return s.ru_utime + s.ru_stime + c.ru_utime + c.ru_stime
 
 
+RUN: Run  # the current run (set in main)
+
+
 def timed(label: str, fn):
     w0, c0 = time.perf_counter(), cpu()
     result = fn()
-    print(f"{label:<34s} wall {time.perf_counter() - w0:6.2f} s   cpu {cpu() - c0:6.2f} s")
+    wall, used = time.perf_counter() - w0, cpu() - c0
+    RUN.record_all(label.strip(), {"wall_s": wall, "cpu_s": used}, "s")
+    print(f"{label:<34s} wall {wall:6.2f} s   cpu {used:6.2f} s")
     return result
+
+
+def summary(label: str, d) -> None:
+    from vid2sim.factory.runtime.stage_cache import load_record
+
+    s = load_record(d).summary
+    RUN.record_all(label, s)
+    print(f"{label}:", s)
 
 
 def main() -> None:
@@ -45,10 +59,18 @@ def main() -> None:
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None)
+    add_run_args(ap)
     args = ap.parse_args()
+    global RUN
+    with Run("ingest", args, config={"fps": args.fps, "workers": args.workers}) as RUN:
+        bench(args)
+
+
+def bench(args: argparse.Namespace) -> None:
     video = DATA / "gopro_max_sidewalk" / "max-heromode.mp4"
     if not video.exists():
-        sys.exit(f"{video} is absent")
+        RUN.skip("gopro", f"{video} is absent (benchmarks read ../shared/data beside the project)")
+        return
     out = args.out or Path(tempfile.mkdtemp(prefix="vid2sim-ingest-"))
     conf = replace(decode.DecodeConfig(), fps=args.fps, workers=args.workers)
     print(f"cores {os.cpu_count()}, load {os.getloadavg()[0]:.1f}, fps {args.fps}, workers {args.workers}")
@@ -59,14 +81,12 @@ def main() -> None:
     timed("  face detection, 10 frames, 1 proc", lambda: [blur(s.image) for s in samples[:10]])
     d = timed("decode stage (total)", lambda: decode.main(conf, video, out / "decode"))
     m = timed("masks stage (total)", lambda: masks.main(masks.MasksConfig(), d, out / "masks"))
-    from vid2sim.factory.runtime.stage_cache import load_record
-
-    print("decode summary:", load_record(d).summary)
-    print("masks summary:", load_record(m).summary)
+    summary("decode summary", d)
+    summary("masks summary", m)
     lund = DATA / "opensfm_lund_street" / "images"
     if lund.exists():
         ld = timed("lund folder decode (29 photos)", lambda: decode.main(conf, lund, out / "lund"))
-        print("lund summary:", load_record(ld).summary)
+        summary("lund summary", ld)
     if args.out is None:
         shutil.rmtree(out)
 

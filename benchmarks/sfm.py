@@ -26,10 +26,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from common import hardware_line  # benchmarks/common.py
+from common import Run, add_run_args  # benchmarks/common.py
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
+RUN: Run  # the current run (set in main)
 
 
 def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
@@ -71,7 +72,30 @@ def report(name: str, q: dict, times: dict, extra: dict) -> dict:
     print("sfm steps: " + ", ".join(f"{k} {v:.1f}" for k, v in q["seconds"].items()))
     for k, v in extra.items():
         print(f"{k}: {v}")
+    record_clip(name, q, times, total, extra)
     return {"clip": name, "quality": q, "seconds": times, "total_s": total, **extra}
+
+
+def flat(d: dict, prefix: str = "") -> dict:
+    """Nested dict -> {"outer inner": value}."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict):
+            out.update(flat(v, key + " "))
+        else:
+            out[key] = v
+    return out
+
+
+def record_clip(name: str, q: dict, times: dict, total: float, extra: dict) -> None:
+    """Every figure report() prints, as rows of the run (case: the clip)."""
+    keys = ("num_registered", "num_frames", "registered_fraction", "mapper", "camera_model", "camera_params",
+            "mean_reproj_error_px", "mean_track_length", "num_points", "median_tri_angle_deg")
+    RUN.record_all(name, {k: q[k] for k in keys}, {"mean_reproj_error_px": "px", "median_tri_angle_deg": "deg"})
+    RUN.record_all(name, {**{f"{k} s": v for k, v in times.items()}, "total s": total}, "s")
+    RUN.record_all(name, {f"sfm step {k} s": v for k, v in q["seconds"].items()}, "s")
+    RUN.record_all(name, flat(extra))
 
 
 def frame_facts(pdir: Path) -> dict:
@@ -200,21 +224,27 @@ def main() -> None:
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--work", default="/tmp/vid2sim-bench-sfm")
     ap.add_argument("--keep", action="store_true", help="reuse finished stages in --work")
+    add_run_args(ap)
     a = ap.parse_args()
-    print(hardware_line())
+    global RUN
+    with Run("sfm", a) as RUN:
+        bench(a)
+
+
+def bench(a: argparse.Namespace) -> None:
     results = []
     for name in a.clips.split(","):
         work = Path(a.work) / name
         if not a.keep:
             shutil.rmtree(work, ignore_errors=True)
         if name != "synthetic" and not DATA.exists():
-            print(f"\n== {name}: skipped ({DATA} is absent)")
+            RUN.skip(name, f"{DATA} is absent")
             continue
         try:
             results.append(RUNNERS[name](work, a.preset))
         except Exception as e:  # report and go on with the next clip
+            RUN.note(f"{name} failed: {type(e).__name__}: {e}")
             print(f"\n== {name}: FAILED {type(e).__name__}: {e}")
-    print("\n" + hardware_line())
     Path(a.work).mkdir(parents=True, exist_ok=True)
     (Path(a.work) / "results.json").write_text(json.dumps(results, indent=2, default=str))
 
