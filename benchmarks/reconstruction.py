@@ -25,6 +25,7 @@ from typing import Optional
 
 import numpy as np
 
+from common import Run, add_run_args  # benchmarks/common.py
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import config as C
 from vid2sim.factory.recon.trainer import main as reconstruct
@@ -33,6 +34,14 @@ ROOT = Path(__file__).resolve().parent.parent
 REAL = ROOT.parent / "shared" / "data" / "gopro_max_sidewalk"
 COLUMNS = ("psnr", "ssim", "depth_median_abs_rel", "depth_expected_abs_rel", "depth_median_rmse",
            "normal_err_deg", "n_gaussians", "train_seconds", "seconds")
+UNITS = {"psnr": "dB", "depth_median_rmse": "m", "normal_err_deg": "deg", "train_seconds": "s", "seconds": "s",
+         "wall_seconds": "s"}
+RUN: Run  # the current run (set in main)
+
+
+def skipped(reason: str) -> None:
+    RUN.note(f"skipped real: {reason}")
+    print(f"[real] skipped: {reason}")
 
 
 def synthetic_clip(work: Path, seconds: float, width: int, n_points: int, jitter: float, seed: int) -> tuple[Path, Path]:
@@ -56,18 +65,18 @@ def synthetic_clip(work: Path, seconds: float, width: int, n_points: int, jitter
 def real_clip(work: Path) -> Optional[Path]:
     """The factory's front half on the GoPro sidewalk clip; None (with a message) if unavailable."""
     if not REAL.exists():
-        print(f"[real] skipped: {REAL} is absent")
+        skipped(f"{REAL} is absent")
         return None
     try:
         from vid2sim.factory.ingest import decode, masks
         from vid2sim.factory.sfm import metric, sfm
         from vid2sim.factory.runtime.pipeline import preset as pipeline_preset
     except ImportError as e:
-        print(f"[real] skipped: SfM/metric stages not available ({e})")
+        skipped(f"SfM/metric stages not available ({e})")
         return None
     video = next(iter(sorted(REAL.glob("*.mp4"))), None)
     if video is None:
-        print(f"[real] skipped: no video in {REAL}")
+        skipped(f"no video in {REAL}")
         return None
     try:
         pc = pipeline_preset("fast")
@@ -76,10 +85,11 @@ def real_clip(work: Path) -> Optional[Path]:
         msk = masks.main(pc.masks, dec, work / "real" / "masks")
         sfm_dir = sfm.main(pc.sfm, dec / "images", msk / "masks", work / "real" / "sfm")
         posed = metric.main(pc.metric, sfm_dir, work / "real" / "metric")
-        print(f"[real] front half (decode, masks, SfM, metric) {time.perf_counter() - t0:.0f} s")
+        secs = RUN.record("real: front half (decode, masks, SfM, metric)", "seconds", time.perf_counter() - t0, "s")
+        print(f"[real] front half (decode, masks, SfM, metric) {secs:.0f} s")
         return Path(posed)
     except Exception as e:  # a failing upstream stage must not hide the synthetic result
-        print(f"[real] skipped: front half failed: {type(e).__name__}: {e}")
+        skipped(f"front half failed: {type(e).__name__}: {e}")
         return None
 
 
@@ -92,6 +102,8 @@ def run_pair(name: str, posed: Path, work: Path, conf: C.ReconConfig, gt_depth: 
         m.pop("per_frame", None)
         m["wall_seconds"] = time.perf_counter() - t0
         rows[variant] = m
+        RUN.record_all(f"{name}: {variant}", {k: m.get(k) for k in (*COLUMNS, "wall_seconds")}, UNITS,
+                       {"iterations": c.iterations, "prior": c.prior.kind})
         print(f"[{name}] {variant}: " + ", ".join(f"{k}={_fmt(m.get(k))}" for k in COLUMNS), flush=True)
     return rows
 
@@ -113,6 +125,7 @@ def report(name: str, rows: dict) -> dict:
             key = f"depth_{which}_abs_rel"
             out[f"{which}_depth_error_cut"] = 1.0 - g[key] / b[key]
         out["target_met"] = bool(out["median_depth_error_cut"] >= 0.30 and out["psnr_delta_db"] >= -0.3)
+    RUN.record_all(f"{name}: geometry vs 3dgs", out, {"psnr_delta_db": "dB"})
     print(f"  {json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in out.items()})}")
     return out
 
@@ -127,7 +140,14 @@ def main(argv: Optional[list[str]] = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--skip-real", action="store_true")
     ap.add_argument("--work", type=Path, default=ROOT / "vid2sim-work" / "bench-recon")
+    add_run_args(ap)
     a = ap.parse_args(argv)
+    global RUN
+    with Run("reconstruction", a, argv=None if argv is None else ["benchmarks/reconstruction.py", *argv]) as RUN:
+        return bench(a)
+
+
+def bench(a: argparse.Namespace) -> int:
     conf = C.preset("fast")
     if a.iterations:
         conf = dataclasses.replace(conf, iterations=a.iterations)
@@ -136,7 +156,9 @@ def main(argv: Optional[list[str]] = None) -> int:
     results = {"config": conf.to_dict()}
     t0 = time.perf_counter()
     posed, depth = synthetic_clip(a.work, a.seconds, a.width, a.points, a.jitter, a.seed)
-    print(f"[synthetic] clip ready in {time.perf_counter() - t0:.0f} s")
+    secs = RUN.record("synthetic: clip", "seconds", time.perf_counter() - t0, "s",
+                      {"seconds": a.seconds, "width": a.width, "points": a.points, "jitter_m": a.jitter})
+    print(f"[synthetic] clip ready in {secs:.0f} s")
     results["synthetic"] = run_pair("synthetic", posed, a.work, conf, depth)
     results["synthetic_summary"] = report("synthetic", results["synthetic"])
     if not a.skip_real:
