@@ -1,12 +1,12 @@
-"""A short distributed rollout/training job for the 2-node cluster test.
+"""A short distributed training job for the 2-node cluster test.
 
-It uses plain Ray actors (not the training package, so it tests distribution alone) stepping a real
-Gymnasium env (CartPole-v1) and trains a linear policy by random search (the driver keeps the
-best perturbation each round). Each actor first checks the committed scene out of the registry
-on its own node (object store, nothing shared) and reads its walkable map, so the job proves the
-registry is readable from every node; each actor writes its own stats into the run folder on the
-store and tags the scene in the registry (commits from worker nodes, concurrently); the driver
-writes the run's marker last.
+`distill_rounds`: the training package's `RayVecEnv` with one env actor per node (SPREAD) steps
+`vid2sim/PointNav-v0` on the scene the cluster just committed (each actor checks it out of the
+object-store registry on its own node), the scripted teacher labels every state, and the driver
+runs a few DAgger rounds of the pixel student (collection on both nodes, learner updates in the
+driver). `RolloutWorker`s (one per node) check the scene out too, write their stats into the
+run folder on the store and tag the scene in the registry (commits from worker nodes,
+concurrently); the driver writes the run's marker last.
 """
 
 from __future__ import annotations
@@ -14,67 +14,66 @@ from __future__ import annotations
 import json
 import os
 
-import gymnasium as gym
+from pathlib import Path
+
 import numpy as np
 import ray
+import torch
 
 from vid2sim.factory.runtime.object_store import ObjectStore
 from vid2sim.factory.runtime.staging import scratch_root
 from vid2sim.formats.walkable import load_walkable
 from vid2sim.registry import Registry
+from vid2sim.training.config import DistillConfig, TrainConfig
+from vid2sim.training.distill import Collector, Dataset, env_specs, fit, make_student
+from vid2sim.training.rollouts import RayVecEnv, RayVecEnvConfig
+from vid2sim.training.student import StudentConfig
 
 
-@ray.remote(num_cpus=1)
+@ray.remote(num_cpus=0.5)
 class RolloutWorker:
-    """Steps CartPole with linear policies; reports where it runs and the scene it read."""
+    """Checks the scene out on its node, reports where it runs, writes stats and tags the scene."""
 
-    def __init__(self, registry_uri: str, scene_id: str, seed: int) -> None:
+    def __init__(self, registry_uri: str, scene_id: str) -> None:
         dest = scratch_root() / "checkouts" / scene_id
         bundle = Registry(registry_uri).checkout(scene_id, dest=dest)
-        grid = load_walkable(bundle / "walkable.npz")
-        self.walkable_cells = int(grid.grid.sum())
-        self.env = gym.make("CartPole-v1")
-        self.seed = seed
-        self.steps = 0
+        self.walkable_cells = int(load_walkable(bundle / "walkable.npz").grid.sum())
 
     def where(self) -> dict:
         return {"node_id": ray.get_runtime_context().get_node_id(),
                 "scratch": os.environ.get("VID2SIM_SCRATCH", ""), "walkable_cells": self.walkable_cells}
 
-    def evaluate(self, weights: np.ndarray, episodes: int = 2) -> float:
-        """Mean return of the policy `action = [obs, 1] . weights > 0`."""
-        total = 0.0
-        for e in range(episodes):
-            obs, _ = self.env.reset(seed=self.seed * 1000 + e)
-            done = False
-            while not done:
-                action = int(np.dot(np.append(obs, 1.0), weights) > 0)
-                obs, reward, term, trunc, _ = self.env.step(action)
-                total += float(reward)
-                self.steps += 1
-                done = term or trunc
-        return total / episodes
-
-    def report(self, work_uri: str, run_key: str, registry_uri: str, scene_id: str) -> dict:
+    def report(self, work_uri: str, run_key: str, registry_uri: str, scene_id: str, stats: dict) -> dict:
         """From this node: write the worker's stats into the run folder and tag the scene in the
         registry (the workers commit concurrently to the same scene)."""
-        info = {**self.where(), "env_steps": self.steps}
+        info = {**self.where(), **stats}
         name = info["node_id"][:12]
         ObjectStore(work_uri).write_bytes(f"{run_key}/workers/{name}.json", json.dumps(info).encode())
         info["tag_version"] = Registry(registry_uri).tag(scene_id, f"rollout-{name}").version
         return info
 
 
-def train(workers: list, rounds: int, rng: np.random.Generator, sigma: float = 0.5) -> list[float]:
-    """Random search: every worker scores one perturbation per round; keep the best."""
-    weights = np.zeros(5)
-    best = ray.get(workers[0].evaluate.remote(weights))
-    curve = [best]
-    for _ in range(rounds):
-        cands = [weights + sigma * rng.standard_normal(5) for _ in workers]
-        scores = ray.get([w.evaluate.remote(c) for w, c in zip(workers, cands)])
-        i = int(np.argmax(scores))
-        if scores[i] > best:
-            weights, best = cands[i], scores[i]
-        curve.append(best)
-    return curve
+def distill_rounds(registry_uri: str, scene_id: str, run_dir: Path, rounds: int = 3) -> dict:
+    """A few DAgger rounds with env actors on both nodes; the nodes, labels and learner losses."""
+    small = StudentConfig(channels=(4, 8, 8, 8), frame_dim=16, vector_dim=8, hidden=32)
+    config = TrainConfig(run_dir=str(run_dir), total_steps=rounds * 60, registry=registry_uri, scene_ids=[scene_id],
+                         n_envs=2, n_actors=2, method="distill", stuck_steps=10,
+                         env_kwargs={"training": True, "fidelity": "exact", "checkout_root": None},
+                         distill=DistillConfig(steps_per_round=60, updates_per_round=20, batch_size=16,
+                                               train_max_steps=40, student=small))
+    env = RayVecEnv(env_specs(config), RayVecEnvConfig(n_actors=2, num_cpus_per_actor=0.5,
+                                                       scheduling_strategy="SPREAD"))
+    try:
+        nodes = env.actor_nodes()
+        student = make_student(config, env)
+        optimizer = torch.optim.Adam(student.parameters(), lr=1e-3)
+        collector, dataset, rng = Collector(env, student, 0), Dataset(10_000), np.random.default_rng(0)
+        labels, losses = [], []
+        for k in range(rounds):
+            batch, stats = collector.collect(60, 0.5 ** k, True)
+            dataset.add(batch)
+            losses.append(fit(student, optimizer, dataset.arrays(), 20, 16, 2, rng)["loss"])
+            labels.append(stats.labels)
+    finally:
+        env.close()
+    return {"env_nodes": nodes, "labels": labels, "losses": losses}

@@ -106,6 +106,10 @@ class EnvWorker:
     def pid(self) -> int:
         return os.getpid()
 
+    def node_id(self) -> str:
+        """The Ray node this worker runs on ("" outside Ray)."""
+        return ray.get_runtime_context().get_node_id() if ray.is_initialized() else ""
+
     def spaces(self) -> tuple[gym.Space, gym.Space]:
         return self.envs[0].observation_space, self.envs[0].action_space
 
@@ -176,6 +180,7 @@ class RayVecEnvConfig:
     n_actors: int = 2
     num_cpus_per_actor: float = 1.0
     max_restarts: int = 10  # per RayVecEnv, across actors; then the error propagates
+    scheduling_strategy: Optional[str] = None  # Ray's: None (default packing) or "SPREAD" (one actor per node first)
 
 
 class RayVecEnv(VecEnv):
@@ -197,7 +202,10 @@ class RayVecEnv(VecEnv):
         self._actions: Optional[np.ndarray] = None
 
     def _new_actor(self, block: Sequence[int]) -> Any:
-        return self._actor_cls.remote([self.specs[i] for i in block])
+        cls = self._actor_cls
+        if self.config.scheduling_strategy:
+            cls = cls.options(scheduling_strategy=self.config.scheduling_strategy)
+        return cls.remote([self.specs[i] for i in block])
 
     # ---------------------------------------------------------------- core API
     def reset(self) -> Any:
@@ -263,6 +271,9 @@ class RayVecEnv(VecEnv):
 
     def actor_pids(self) -> list[int]:
         return ray.get([a.pid.remote() for a in self.actors])
+
+    def actor_nodes(self) -> list[str]:
+        return ray.get([a.node_id.remote() for a in self.actors])
 
     # ---------------------------------------------------------------- attribute / method access
     def _by_actor(self, indices: VecEnvIndices) -> Iterable[tuple[int, list[int], list[int]]]:
