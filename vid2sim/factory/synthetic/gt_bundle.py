@@ -83,7 +83,7 @@ def sample_splats(scene: StreetScene, conf: GTBundleConfig) -> dict[str, np.ndar
     p, fid = p[: conf.n_splats], fid[: conf.n_splats]
     n = face_normals(V, F)[fid]  # [N, 3]
     rgb = shade(albedo(p, n, scene.face_material[fid], scene.face_color[fid], scene.face_instance[fid],
-                       np.full(len(p), spacing), c), n)
+                       np.full(len(p), spacing), c), n, c)
     # local frame: columns (t1, t2, n) -> quaternion (w, x, y, z)
     helper = np.where(np.abs(n[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
     t1 = np.cross(helper, n)

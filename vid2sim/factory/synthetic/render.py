@@ -122,7 +122,7 @@ class StreetRenderer:
         cosang = np.abs(np.sum(n * dh, 1))
         fp = th / self.conf.fx / np.maximum(cosang, 0.15)  # pixel footprint on the surface (m)
         rgb = np.empty((H * W, 3), np.float32)
-        col = shade(albedo(p, n, self.mat[prim], self.col[prim], self.inst[prim], fp, self.conf), n)
+        col = shade(albedo(p, n, self.mat[prim], self.col[prim], self.inst[prim], fp, self.conf), n, self.conf)
         fog = (1 - np.exp(-th / 150.0))[:, None]
         rgb[hit] = col * (1 - fog) + SKY_HORIZON * fog
         rgb[~hit] = sky(d[~hit])
@@ -180,7 +180,7 @@ def sample_surface_points(scene: StreetScene, n: int, seed: int = 0, x_pad: floa
     p, fid = p[keep][:n], fid[keep][:n]
     nrm = face_normals(V, F)[fid]
     rgb = shade(albedo(p, nrm, scene.face_material[fid], scene.face_color[fid], scene.face_instance[fid],
-                       np.full(len(p), 0.02), c), nrm)
+                       np.full(len(p), 0.02), c), nrm, c)
     del cen
     return p, np.clip(rgb * 255 + 0.5, 0, 255).astype(np.uint8)
 

@@ -187,11 +187,16 @@ def albedo(p: np.ndarray, n: np.ndarray, mat: np.ndarray, col: np.ndarray, inst:
     return out
 
 
-def shade(rgb: np.ndarray, n: np.ndarray) -> np.ndarray:
-    """Lambert with a sun and sky ambient; n [N, 3] world normals facing the viewer."""
-    lam = np.clip(n[:, 0] * SUN[0] + n[:, 1] * SUN[1] + n[:, 2] * SUN[2], 0.0, 1.0).astype(np.float32)
-    amb = 0.50 + 0.12 * n[:, 2].astype(np.float32)
-    return rgb * (amb + 0.55 * lam)[:, None]
+def shade(rgb: np.ndarray, n: np.ndarray, conf=None) -> np.ndarray:
+    """Lambert with a sun and sky ambient; n [N, 3] world normals facing the viewer. The street's
+    lighting (`StreetConfig.sun_direction`, `ambient`, `sun_strength`) when `conf` is given."""
+    sun, ambient, strength = SUN, 0.50, 0.55
+    if conf is not None:
+        sun = np.asarray(conf.sun_direction, np.float64) / np.linalg.norm(conf.sun_direction)
+        ambient, strength = conf.ambient, conf.sun_strength
+    lam = np.clip(n[:, 0] * sun[0] + n[:, 1] * sun[1] + n[:, 2] * sun[2], 0.0, 1.0).astype(np.float32)
+    amb = ambient + 0.12 * n[:, 2].astype(np.float32)
+    return rgb * (amb + strength * lam)[:, None]
 
 
 def sky(d: np.ndarray) -> np.ndarray:

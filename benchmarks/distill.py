@@ -1,0 +1,143 @@
+"""Pixel agents distilled from the A* teacher: held-out success over seeds, SocialNav, the scene-count study.
+
+    python benchmarks/distill.py heldout --streets 12 --seeds 0 1 2 --steps 64000 [--socialnav]
+    python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
+    python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 rounds (smoke run)
+
+Scenes: synthetic-street ground-truth bundles whose layout, furniture and light differ by seed
+(`benchmarks/street_registry.py --vary`, `vid2sim.factory.synthetic.varied`); the registry's
+split (seed 0, 20 % of the streets) holds out whole streets. Training: `vid2sim train --method
+distill` (`training/distill.py`), in-process envs (so the process's CPU seconds are the whole
+cost), fast render fidelity with training augmentation. Evaluation: `vid2sim eval policy`'s
+protocol: 25 trials per held-out street (seeds 1000 + k), 0-5 static obstacles, exact render
+fidelity, no jitter or augmentation, the env's 3000-step limit; SR, SPL and Cost with 95 %
+bootstrap intervals; `--socialnav` also evaluates the same students with 1-4 pedestrians (SR, SNS).
+Every figure states its budget (env steps, wall and CPU seconds).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import numpy as np  # noqa: E402
+from common import Run, add_run_args  # noqa: E402
+from street_registry import build  # noqa: E402
+
+from vid2sim.training.config import DistillConfig, TrainConfig  # noqa: E402
+from vid2sim.training.distill import train_distill  # noqa: E402
+from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
+from vid2sim.training.rollouts import init_ray  # noqa: E402
+from vid2sim.training.study import StudyConfig, aggregate, run_study  # noqa: E402
+
+
+def cpu_seconds() -> float:
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
+
+
+def registry(args) -> str:
+    return str(build(args.root, list(range(1, args.streets + 1)), vary=True).root)
+
+
+def distill_config(args) -> DistillConfig:
+    return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round)
+
+
+def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
+    row = {}
+    for k in metrics:
+        m = rep.metrics[k]
+        row[k] = [round(m.mean, 3), round(m.low, 3), round(m.high, 3)]
+        run.record(case, k, m.mean, "", {"ci95": [m.low, m.high], "episodes": rep.episodes, **budget})
+    print(json.dumps({"case": case, "episodes": rep.episodes, **row, **budget}), flush=True)
+    return row
+
+
+def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
+    run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
+    config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
+                         seed=seed, method="distill", stuck_steps=10,
+                         env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts")},
+                         distill=distill_config(args))
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
+    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                                                                     for k, v in row.items()}), flush=True))
+    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
+              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": seed}
+    return run_dir, budget
+
+
+def run_heldout(args, run: Run) -> None:
+    reg = registry(args)
+    successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
+    for seed in args.seeds:
+        run_dir, budget = train_one(args, reg, seed)
+        run.record(f"pointnav seed {seed}", "train_wall_s", budget["train_wall_s"], "s", budget)
+        run.record(f"pointnav seed {seed}", "train_cpu_s", budget["train_cpu_s"], "s", budget)
+        for task, obstacles in (("pointnav", "static"), ("socialnav", "dynamic")):
+            if task == "socialnav" and not args.socialnav:
+                continue
+            rep = evaluate(EvalConfig(registry=reg, policy=str(run_dir), trials=args.trials, obstacles=obstacles,
+                                      checkout_root=str(args.root / "checkouts")))
+            (run_dir / f"eval_{task}.json").write_text(rep.to_json())
+            metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
+            record_eval(run, f"{task} seed {seed}", rep, budget, metrics)
+            successes[task] += [float(r["success"]) for r in rep.records]
+    for task, values in successes.items():
+        if values:
+            ci = bootstrap_ci(np.array(values))
+            run.record(f"{task} all seeds", "sr", ci.mean, "", {"ci95": [ci.low, ci.high], "episodes": len(values),
+                                                                "seeds": list(args.seeds), "env_steps": args.steps})
+            print(json.dumps({"case": f"{task} all seeds", "sr": [round(ci.mean, 3), round(ci.low, 3),
+                                                                  round(ci.high, 3)], "episodes": len(values)}))
+
+
+def run_study_bench(args, run: Run) -> None:
+    reg = registry(args)
+    init_ray(None, args.num_cpus)
+    config = StudyConfig(registry=reg, out_dir=str(args.root / f"study_{args.steps}{args.tag}"),
+                         counts=[int(c) for c in args.counts.split(",")], seeds=len(args.seeds),
+                         total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
+                         env_kwargs={"training": True}, stuck_steps=10, distill=distill_config(args))
+    rows = run_study(config)
+    for n, agg in aggregate(rows).items():
+        run.record_all(f"{n} training scenes", {k: agg[k] for k in agg if k != "seeds"}, "",
+                       {"seeds": agg["seeds"], "env_steps": args.steps, "trials": args.trials})
+        print(json.dumps({"scenes": int(n), **{k: round(v, 3) for k, v in agg.items()}}), flush=True)
+    print(f"plot: {config.out_dir}/study.png")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("what", choices=["heldout", "study"])
+    ap.add_argument("--root", type=Path, default=Path("/tmp/vid2sim-distill"))
+    ap.add_argument("--streets", type=int, default=12, help="varied streets in the registry (20 %% held out)")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
+    ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
+    ap.add_argument("--steps-per-round", type=int, default=4000)
+    ap.add_argument("--updates-per-round", type=int, default=1500)
+    ap.add_argument("--envs", type=int, default=4)
+    ap.add_argument("--trials", type=int, default=25)
+    ap.add_argument("--socialnav", action="store_true", help="heldout: also evaluate with pedestrians")
+    ap.add_argument("--counts", default="1,5,15,25,30", help="study: training-scene counts")
+    ap.add_argument("--num-cpus", type=int, default=2, help="study: local Ray runtime CPUs (one training each)")
+    ap.add_argument("--quick", action="store_true", help="6 streets, one seed, 2 rounds of 1000 steps, 5 trials")
+    ap.add_argument("--tag", default="")
+    add_run_args(ap)
+    args = ap.parse_args()
+    if args.quick:
+        args.streets, args.seeds, args.steps, args.steps_per_round = 6, [0], 2000, 1000
+        args.updates_per_round, args.trials = 100, 5
+    with Run("distill", args) as run:
+        {"heldout": run_heldout, "study": run_study_bench}[args.what](args, run)
+
+
+if __name__ == "__main__":
+    main()
