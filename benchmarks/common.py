@@ -34,10 +34,18 @@ the rest into `config`. Values are numbers, bools, strings or None (numpy scalar
 converted; NaN / inf are stored as the strings "nan" / "inf").
 The renderer keeps, per (benchmark, case), the rows of the latest run that has that case.
 
+Also: `run.note(text)` stores a remark; `run.skip(case, reason)` prints SKIP and notes it
+(data absent: the run still ends normally); `run.config[...] = ...` adds run-level settings;
+`Run(..., libraries=("duckdb",))` records more library versions; `Run(..., quiet=True)`
+prints nothing. If the `with` block raises, the file is still written, with status
+"failed: ..." and the rows so far. A script that other code imports (street_registry.py)
+imports `common` inside main(). Smoke settings go behind `--quick`; `make bench` runs the
+quick set (see the Makefile) and then `benchmarks/render_docs.py`.
+
 What a results file holds (schema 1): benchmark, description (first docstring paragraph of
 the script), status ("ok", or "failed: ..." when the block raised: the renderer skips those),
-started_utc / finished_utc / duration_s, command (shell-quoted, python relative to the
-repo), argv, cwd, args (the argparse namespace), config (`run.config`, free-form), env (the
+started_utc / started_unix / finished_utc / duration_s, command (shell-quoted, python
+relative to the repo), argv, cwd, args (the argparse namespace), config (`run.config`, free-form), env (the
 VID2SIM_* / OMP_* / NUMBA_* / CUDA_VISIBLE_DEVICES variables set), hardware (cpu_model,
 cores, memory_gib, gpu or null, platform), load (1/5/15-min load average at start and end),
 git (commit, dirty, branch), versions (python and each of numpy, torch, ray, pycolmap,
@@ -290,6 +298,7 @@ class Run:
         end = _dt.datetime.now(_dt.timezone.utc)
         return {"schema": SCHEMA, "benchmark": self.benchmark, "description": self.description,
                 "status": status, "started_utc": self.started.isoformat(timespec="seconds"),
+                "started_unix": round(self.started.timestamp(), 6),
                 "finished_utc": end.isoformat(timespec="seconds"),
                 "duration_s": round(time.perf_counter() - self._t0, 2),
                 "command": self.info["command"], "argv": self.argv, "cwd": self.info["cwd"],
@@ -346,4 +355,15 @@ def load_results(folder: Union[str, Path] = RESULTS_DIR) -> list[dict]:
         if isinstance(d, dict) and d.get("schema") == SCHEMA and "rows" in d:
             d["_path"] = str(p)
             out.append(d)
-    return sorted(out, key=lambda d: (d.get("started_utc", ""), d["_path"]))
+    return sorted(out, key=run_order)
+
+
+def run_order(d: dict) -> tuple:
+    """Sort key of a results file: its start (to the microsecond), then its path."""
+    start = d.get("started_unix")
+    if start is None:
+        try:
+            start = _dt.datetime.fromisoformat(d.get("started_utc", "")).timestamp()
+        except ValueError:
+            start = 0.0
+    return (start, d.get("_path", ""))

@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import REPO, RESULTS_DIR, load_results  # noqa: E402
+from common import REPO, RESULTS_DIR, load_results, run_order  # noqa: E402
 
 DOCS = REPO / "docs" / "benchmarks"
 NOT_BENCHMARKS = {"common", "render_docs"}
@@ -138,7 +138,7 @@ def page(benchmark: str, cases: "OrderedDict[str, tuple[dict, list[dict]]]") -> 
     by_run: OrderedDict[str, tuple[dict, list]] = OrderedDict()
     for case, (run, rows) in cases.items():
         by_run.setdefault(run["_path"], (run, []))[1].append((case, rows))
-    runs = sorted(by_run.values(), key=lambda x: x[0]["started_utc"], reverse=True)
+    runs = sorted(by_run.values(), key=lambda x: run_order(x[0]), reverse=True)
     desc = runs[0][0].get("description") or ""
     lines = [f"# Benchmark: {benchmark}", ""]
     if desc:
@@ -163,7 +163,7 @@ def index(found: dict, scripts: list[str], others: list[str] = ()) -> str:
              "|---|---|---|---|---|---|"]
     for b, cases in sorted(found.items()):
         runs = {r["_path"]: r for r, _ in cases.values()}
-        last = max(runs.values(), key=lambda r: r["started_utc"])
+        last = max(runs.values(), key=run_order)
         commit = (last["git"].get("commit") or "")[:12] + (" (dirty)" if last["git"].get("dirty") else "")
         lines.append(f"| [{b}]({b}.md) | {cell(last.get('description') or '')} | "
                      f"{last['started_utc'][:16].replace('T', ' ')} | `{commit}` | `{cell(last['command'])}` | "
