@@ -47,8 +47,8 @@ def build(root: Path, seeds: list[int], n_splats: int = 20_000, preset_name: str
         reg.add(bundle)
         seconds = time.perf_counter() - t0
         if run is not None:
-            run.record(f"street seed {seed}, {preset_name} preset, {n_splats} splats", "build_and_add_s",
-                       seconds, "s", {"seed": seed, "preset": preset_name, "n_splats": n_splats})
+            run.record(f"{scene_id(seed, vary)}, {preset_name} preset, {n_splats} splats", "build_and_add_s",
+                       seconds, "s", {"seed": seed, "preset": preset_name, "n_splats": n_splats, "vary": vary})
         print(f"seed {seed}: added in {seconds:.1f} s", flush=True)
     return reg
 
