@@ -10,8 +10,6 @@ Builds a 2-street registry under /tmp when --registry is not given.
 from __future__ import annotations
 
 import argparse
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -21,6 +19,7 @@ import ray
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import Run, add_run_args  # noqa: E402
 from street_registry import build  # noqa: E402
 
 from vid2sim.training.rollouts import RayVecEnv, init_ray, RayVecEnvConfig, specs_for_scenes  # noqa: E402
@@ -44,12 +43,16 @@ def main() -> None:
     ap.add_argument("--registry", type=Path)
     ap.add_argument("--envs", type=int, default=4)
     ap.add_argument("--steps", type=int, default=100, help="vector steps timed per backend")
+    add_run_args(ap)
     args = ap.parse_args()
+    with Run("rollouts", args) as run:
+        bench(run, args)
+
+
+def bench(run: Run, args: argparse.Namespace) -> None:
     root = args.registry or build(Path("/tmp/vid2sim-bench-streets"), [1, 2]).root
     scenes = ["synthetic-street-s1", "synthetic-street-s2"]
     specs = specs_for_scenes("vid2sim/PointNav-v0", scenes, args.envs, {"registry": str(root), "training": False})
-    print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}")
-    print(f"# command: {' '.join(sys.argv)}")
     init_ray(num_cpus=2)
     results = {}
     backends = {"DummyVecEnv": lambda: DummyVecEnv([s.make for s in specs]),
@@ -60,9 +63,10 @@ def main() -> None:
         env = make()
         results[name] = time_env(env, args.steps)
         env.close()
+        run.record(name, "env_steps_per_s", results[name], "steps/s",
+                   {"envs": args.envs, "vector_steps": args.steps, "env": "vid2sim/PointNav-v0 rgb"})
         print(f"{name:20s} {results[name]:8.1f} env steps/s  ({args.envs} envs, {args.steps} vector steps)",
               flush=True)
-    print(f"# load after: {os.getloadavg()[0]:.1f}")
     ray.shutdown()
 
 
