@@ -26,10 +26,13 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
-import pybullet as pb
 import trimesh
 
+from vid2sim.bullet import import_pybullet
+
 from .raster import rasterize
+
+pb = import_pybullet()  # without its "pybullet build time" banner
 
 OBSTACLE_KINDS = ("traffic_cone", "trash_bin", "pole", "traffic_light", "barrier")
 LIGHT_DIR = np.array([0.35, 0.25, 0.9]) / np.linalg.norm([0.35, 0.25, 0.9])

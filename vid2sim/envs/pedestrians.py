@@ -21,11 +21,14 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
-import pybullet as pb
 import trimesh
 
 from .planning import GridPlanner
+from vid2sim.bullet import import_pybullet
+
 from .raster import rasterize
+
+pb = import_pybullet()  # without its "pybullet build time" banner
 
 SPEED_RANGE = (1.0, 1.6)  # m/s
 HEIGHT_RANGE = (1.55, 1.90)  # m

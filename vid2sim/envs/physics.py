@@ -13,10 +13,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as pb
 
+from vid2sim.bullet import import_pybullet
 from vid2sim.envs.config import RobotConfig
 from vid2sim.envs.scenes import MeshData
+
+pb = import_pybullet()  # without its "pybullet build time" banner
 
 CONTACT_EPS = 1e-3  # m of penetration that counts as touching
 SWEEP_MARGIN = 0.02  # m added to the swept reach before substep contact queries are skipped
