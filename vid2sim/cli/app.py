@@ -17,6 +17,10 @@ app = typer.Typer(
 
 def _register_subapps() -> None:
     """Each subsystem adds one import + add_typer line here."""
+    from vid2sim.bullet import import_pybullet
+    import_pybullet()  # before any module imports it plainly, so no command prints its build-time banner
+    from vid2sim.cli.config import app as config_app
+    app.add_typer(config_app, name="config")
     from vid2sim.cli.registry import app as registry_app
     app.add_typer(registry_app, name="registry")
     from vid2sim.cli.eval import app as eval_app
@@ -44,7 +48,8 @@ def version() -> None:
 
 @app.command()
 def demo(
-    registry: str = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
+    registry: str = typer.Option(None, "--registry",
+                                 help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     workdir: str = typer.Option("vid2sim-work", "--workdir", help="Work folder for stage outputs."),
 ) -> None:
     """Run the main job end to end on embedded defaults (no downloaded data)."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Optional
+from typing import List, Optional
 
 import typer
 
@@ -13,11 +13,15 @@ app = typer.Typer(help="Evaluate factory outputs against ground truth.", no_args
 
 @app.command("poses")
 def poses(
-    estimate: Path = typer.Option(..., "--estimate", help="PosedClip folder, COLMAP model, transforms.json or poses.txt."),
-    gt: Path = typer.Option(..., "--gt", help="Ground truth: KITTI poses.txt, synthetic clip folder, transforms.json or GoPro CSV."),
-    gt_format: str = typer.Option("auto", "--gt-format", help="kitti | synthetic | transforms | gopro-csv | colmap | auto"),
+    estimate: Path = typer.Option(..., "--estimate",
+                                  help="PosedClip folder, COLMAP model, transforms.json or poses.txt."),
+    gt: Path = typer.Option(..., "--gt",
+                            help="Ground truth: KITTI poses.txt, synthetic clip folder, transforms.json or GoPro CSV."),
+    gt_format: str = typer.Option("auto", "--gt-format",
+                                  help="kitti | synthetic | transforms | gopro-csv | colmap | auto"),
     est_format: str = typer.Option("auto", "--est-format", help="posed | colmap | transforms | kitti | auto"),
-    fps: Optional[float] = typer.Option(None, "--fps", help="GoPro: frame rate to key sub-sampled estimate frames by timestamp."),
+    fps: Optional[float] = typer.Option(None, "--fps",
+                                        help="GoPro: frame rate to key sub-sampled estimate frames by timestamp."),
     stride: int = typer.Option(1, "--stride", help="GoPro: estimate frame j is video frame j * stride."),
     as_json: bool = typer.Option(False, "--json", help="Print the full report as JSON."),
 ) -> None:
@@ -71,6 +75,9 @@ def policy(
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
     record: int = typer.Option(0, "--record", help="MP4s of the first N trials of every scene."),
     record_dir: Path = typer.Option(Path("vid2sim-eval-videos"), "--record-dir", help="Folder for the MP4s."),
+    sets: List[str] = typer.Option([], "--set", metavar="FIELD=VALUE",
+                                   help="Override an EvalConfig field, or env.FIELD of its env config "
+                                        "(repeatable; list: `vid2sim config show eval`)."),
     as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
 ) -> None:
     """Navigation policy on held-out scenes: SR, SPL, Cost, SNS with 95 % bootstrap intervals."""
@@ -84,13 +91,16 @@ def policy(
                         env_id="vid2sim/PointNavPrivileged-v0" if privileged else None,
                         scene_ids=[s for s in (scenes or "").split(",") if s],
                         record=record, record_dir=str(record_dir) if record else None)
+    from vid2sim.cli.settings import apply_eval_overrides, apply_or_exit
+    config = apply_or_exit(config, sets, apply_eval_overrides)
     report = evaluate(config)
     if out:
         out.write_text(report.to_json())
     if as_json:
         typer.echo(report.to_json())
         return
-    table = Table(title=f"{policy}: {report.episodes} episodes ({trials} per scene), obstacles={obstacles}, {variant}")
+    table = Table(title=f"{policy}: {report.episodes} episodes ({config.trials} per scene), "
+                        f"obstacles={config.obstacles}, {config.variant}")
     table.add_column("metric")
     table.add_column("mean")
     table.add_column("95% CI")

@@ -25,17 +25,26 @@ def interrupted_message(states: dict, workdir: str) -> str:
 
 
 def ingest_command(
-    inputs: List[str] = typer.Argument(..., help="Video files, image folders, URIs or manifests (.yaml/.csv/.parquet)."),
-    registry: Optional[str] = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
-    ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster address; default: an embedded local runtime."),
+    inputs: List[str] = typer.Argument(...,
+                                       help="Video files, image folders, URIs or manifests (.yaml/.csv/.parquet)."),
+    registry: Optional[str] = typer.Option(None, "--registry",
+                                           help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
+    ray_address: Optional[str] = typer.Option(None, "--ray-address",
+                                              help="Ray cluster address; default: an embedded local runtime."),
     preset: str = typer.Option("fast", "--preset", help="fast | paper"),
-    config: Optional[Path] = typer.Option(None, "--config", help="PipelineConfig JSON (e.g. a scene.json's pipeline.config); overrides --preset."),
+    config: Optional[Path] = typer.Option(None, "--config",
+                                          help="PipelineConfig JSON (e.g. a scene.json's pipeline.config); "
+                                               "overrides --preset."),
     workdir: str = typer.Option("vid2sim-work", "--workdir",
                                 help="Stage outputs (cache; re-runs resume): a folder or an object-store "
                                      "URI (s3://bucket/work) for clusters without a shared disk."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="CPUs for the embedded Ray runtime (>= 1)."),
     licence: str = typer.Option("unknown", "--licence", help="Licence tag for sources given directly."),
-    capture_height: Optional[float] = typer.Option(None, "--capture-height", help="Camera height above ground (m) for direct sources."),
+    capture_height: Optional[float] = typer.Option(None, "--capture-height",
+                                                   help="Camera height above ground (m) for direct sources."),
+    sets: List[str] = typer.Option([], "--set", metavar="FIELD=VALUE",
+                                   help="Override one pipeline setting, e.g. recon.iterations=500 (repeatable; "
+                                        "applied after --preset / --config; list: `vid2sim config show ingest`)."),
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Turn videos into registered, simulation-ready scenes (each clip's stages run as Ray tasks)."""
@@ -43,16 +52,20 @@ def ingest_command(
     from vid2sim.factory.runtime.progress import IngestProgress
     from vid2sim.factory.runtime.stage_cache import StageError
 
+    from vid2sim.cli.settings import apply_or_exit
+
     console = Console(stderr=True)
     try:
         conf = PipelineConfig.load(config) if config else make_preset(preset)
     except (ValueError, TypeError, OSError) as e:
         console.print(f"[red]error:[/red] {e}")
         raise typer.Exit(2)
+    conf = apply_or_exit(conf, sets)
     holder: dict = {}
 
     def on_plan(ids: list[str]) -> None:
-        holder["progress"] = IngestProgress(ids, [n for n, _ in STAGES], console=console, enabled=not as_json).__enter__()
+        progress = IngestProgress(ids, [n for n, _ in STAGES], console=console, enabled=not as_json)
+        holder["progress"] = progress.__enter__()
 
     def on_update(state) -> None:
         holder.setdefault("states", {})[state.clip_id] = (state.status, state.stage_index, state.stage)
