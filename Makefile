@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench install clean
+.PHONY: demo test test-slow bench lint install clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,10 @@ test: $(STAMP)
 
 test-slow: $(STAMP)
 	$(BIN)/python -m pytest -m "slow" --timeout 3600
+
+# ruff's pyflakes + pycodestyle rules ([tool.ruff] in pyproject.toml); run by .ci/run before the tests
+lint: $(STAMP)
+	$(BIN)/ruff check vid2sim tests benchmarks
 
 clean:
 	rm -rf $(VENV) vid2sim-registry .pytest_cache
