@@ -134,7 +134,8 @@ def test_quick_benchmark_script_as_a_subprocess(tmp_path):
     d = json.loads(files[0].read_text())
     assert d["status"] == "ok" and d["args"]["reps"] == 3 and d["command"].endswith("envs_assets.py --reps 3")
     cases = {r["case"] for r in d["rows"]}
-    assert any(c.startswith("augment.apply") for c in cases) and {r["metric"] for r in d["rows"]} == {"cpu_ms", "wall_ms"}
+    assert any(c.startswith("augment.apply") for c in cases)
+    assert {r["metric"] for r in d["rows"]} == {"cpu_ms", "wall_ms"}
     assert len(cases) == sum(": " in ln and "ms CPU" in ln for ln in lines)  # every printed line is recorded
 
 

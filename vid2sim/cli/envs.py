@@ -14,7 +14,8 @@ app = typer.Typer(help="Navigation environments on registry scenes.", no_args_is
 def record(
     scene: str = typer.Argument(..., help="Scene id, or split:train / split:test / split:train_N."),
     episodes: int = typer.Option(1, "--episodes", help="Episodes to record (seeds seed, seed+1, ...)."),
-    registry: Optional[str] = typer.Option(None, "--registry", help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
+    registry: Optional[str] = typer.Option(None, "--registry",
+                                           help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     out: Path = typer.Option(Path("vid2sim-recordings"), "--out", help="Folder for the MP4 files."),
     task: str = typer.Option("PointNav", "--task", help="PointNav | SocialNav"),
     variant: str = typer.Option("rgb", "--variant", help="rgb | depth | mesh-rgb"),

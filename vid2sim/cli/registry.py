@@ -183,7 +183,8 @@ def _parse_min(items: List[str]) -> dict[str, float]:
 @app.command()
 @handles_errors
 def split(seed: int = typer.Option(0, "--seed"),
-          test_fraction: float = typer.Option(0.2, "--test-fraction", help="Share of scenes held out (whole source videos)."),
+          test_fraction: float = typer.Option(0.2, "--test-fraction",
+                                              help="Share of scenes held out (whole source videos)."),
           test_group: List[str] = typer.Option([], "--test-group", help="Fixed held-out source group (repeat)."),
           train_size: List[int] = typer.Option([], "--train-size", help="Nested train subset size (repeat)."),
           tag_: List[str] = typer.Option([], "--tag", help="Require this tag (repeat)."),
@@ -229,7 +230,8 @@ def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 @app.command()
 @handles_errors
 def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
-       grace_seconds: float = typer.Option(3600.0, "--grace-seconds", help="Keep unreferenced blobs younger than this."),
+       grace_seconds: float = typer.Option(3600.0, "--grace-seconds",
+                                           help="Keep unreferenced blobs younger than this."),
        dry_run: bool = typer.Option(False, "--dry-run"),
        force: bool = typer.Option(False, "--force", help="Delete unreferenced blobs even when the manifest "
                                   "log looks damaged or blobs exist that nothing accounts for (lost history).")

@@ -19,11 +19,11 @@ from vid2sim.envs.compositing import composite
 from vid2sim.envs.obstacles import ObstacleConfig, ObstacleSet, Placement, occupancy, place_on_corridor
 from vid2sim.envs.pedestrians import BODY_RADIUS, Crowd
 from vid2sim.envs.planning import GridPlanner
+from vid2sim.formats.walkable import WalkableGrid
 
 # m added around obstacle footprints for the expert route (the box's corners reach 0.54 m
 # from its centre while the planner keeps 0.35 m from anything blocked)
 OBSTACLE_MARGIN = 0.25
-from vid2sim.formats.walkable import WalkableGrid
 
 
 def _over(rgb: np.ndarray, depth: np.ndarray, rgb_b: np.ndarray, depth_b: np.ndarray

@@ -1,8 +1,9 @@
 """Episode sampling: start and goal on the walkable map joined by an A* path of a given length.
 
 Start and goal lie on `ends` cells when given (cells `EpisodeConfig.end_clearance` from blocked
-ones, where the robot can turn; `end_cells`), else on the planner's free cells. A random start from which no goal lies far enough (the middle of a narrow map whose longest
-path is close to the range's lower end) is moved to the farthest point from it.
+ones, where the robot can turn; `end_cells`), else on the planner's free cells. A random start
+from which no goal lies far enough (the middle of a narrow map whose longest path is close to the
+range's lower end) is moved to the farthest point from it.
 
 Geodesic range: 10-30 m (the paper) when the map's longest A* path allows, else from 70 % of
 the longest path up to it, never below 5 m (the paper's real-world range): a map whose longest

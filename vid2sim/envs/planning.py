@@ -1,8 +1,8 @@
 """Grid planning on a scene's walkable map: A* paths, free-point sampling, geodesic lengths.
 
 Grid convention (`vid2sim.formats.walkable`, the bundle's `walkable.npz`): `grid[row, col]`
-uint8, 1 = walkable; cell [0, 0] has its lower-left corner at world `origin` (x, y); columns run along +x, rows along +y;
-`resolution` metres per cell. Points outside the grid are not walkable.
+uint8, 1 = walkable; cell [0, 0] has its lower-left corner at world `origin` (x, y); columns run
+along +x, rows along +y; `resolution` metres per cell. Points outside the grid are not walkable.
 
 The search is 8-connected with metric step costs (resolution, resolution x sqrt 2); a diagonal
 step is allowed only when both side cells are free (no corner cutting). Clearance inflation

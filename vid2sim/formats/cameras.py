@@ -44,7 +44,8 @@ def load_cameras(path: Path) -> pa.Table:
     wrong = [f"{f.name} is {got[f.name]}, expected {f.type}" for f in want if f.name in got and got[f.name] != f.type]
     extra = sorted(set(got) - set(want.names))
     if missing or wrong or extra:
-        parts = ([f"missing columns {missing}"] if missing else []) + wrong + ([f"unknown columns {extra}"] if extra else [])
+        parts = (([f"missing columns {missing}"] if missing else []) + wrong
+                 + ([f"unknown columns {extra}"] if extra else []))
         raise BundleError(path, "wrong cameras schema: " + "; ".join(parts))
     table = table.select(want.names)
     splits = set(table.column("split").to_pylist())

@@ -3,9 +3,10 @@
 Writes go to `<root>/blobs/tmp/<random>` and are renamed into place, so a blob path either
 holds the full content or does not exist. Before an add stores blobs it writes an intent
 (`<root>/blobs/intents/<id>.json`: the scene and the blob hashes) and removes it after its
-commit, so a blob that no manifest row and no intent accounts for means lost history. Identical content is stored once. Two backends share
-one small interface: `LocalBlobStore` (a folder; os.replace + fsync) and `ArrowBlobStore` (any
-pyarrow FileSystem, including fsspec filesystems wrapped by `pyarrow.fs.FSSpecHandler`).
+commit, so a blob that no manifest row and no intent accounts for means lost history. Identical
+content is stored once. Two backends share one small interface: `LocalBlobStore` (a folder;
+os.replace + fsync) and `ArrowBlobStore` (any pyarrow FileSystem, including fsspec filesystems
+wrapped by `pyarrow.fs.FSSpecHandler`).
 """
 
 from __future__ import annotations

@@ -2,8 +2,8 @@
 
 Written for clarity, not speed: per image tile, every visible splat whose square
 [mean2d +- radius] touches the tile is evaluated at every pixel of the tile (dense
-[P, V] tensors), and autograd provides all gradients. It is the ground truth the `cpu` and `cuda` backends are tested against,
-and it runs in float32 or float64 (for gradcheck).
+[P, V] tensors), and autograd provides all gradients. It is the ground truth the `cpu` and `cuda`
+backends are tested against, and it runs in float32 or float64 (for gradcheck).
 """
 
 from __future__ import annotations

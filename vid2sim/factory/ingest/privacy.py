@@ -67,7 +67,8 @@ class CascadeFaces:
         if not hasattr(cv2, "CascadeClassifier"):
             raise StageError("privacy", "no_face_detector",
                              f"OpenCV {cv2.__version__} has no CascadeClassifier (moved out of OpenCV 5 main)")
-        path = conf.model_path or str(Path(getattr(cv2.data, "haarcascades", "")) / "haarcascade_frontalface_default.xml")
+        cascades = Path(getattr(cv2.data, "haarcascades", ""))
+        path = conf.model_path or str(cascades / "haarcascade_frontalface_default.xml")
         self._clf = cv2.CascadeClassifier(path)
         if self._clf.empty():
             raise StageError("privacy", "no_face_detector", f"cannot load cascade {path}")
@@ -84,7 +85,8 @@ class YuNetFaces:
 
     def __init__(self, conf: FaceConfig) -> None:
         if not conf.model_path or not Path(conf.model_path).is_file():
-            raise StageError("privacy", "no_face_detector", f"yunet needs a local .onnx model_path, got {conf.model_path!r}")
+            raise StageError("privacy", "no_face_detector",
+                             f"yunet needs a local .onnx model_path, got {conf.model_path!r}")
         thr = conf.score_threshold or 0.6
         self._det = cv2.FaceDetectorYN.create(str(conf.model_path), "", (320, 320), thr, 0.3, 5000)
 
@@ -140,6 +142,7 @@ class FaceBlurrer:
             return bgr, np.zeros((0, 4))
         h, w = bgr.shape[:2]
         s = min(1.0, self.conf.max_side / max(h, w))
-        small = bgr if s == 1.0 else cv2.resize(bgr, (int(round(w * s)), int(round(h * s))), interpolation=cv2.INTER_AREA)
+        small = bgr if s == 1.0 else cv2.resize(bgr, (int(round(w * s)), int(round(h * s))),
+                                                interpolation=cv2.INTER_AREA)
         boxes = self.detector.detect(small) / s  # [K, 4] full-resolution pixels
         return (blur_boxes(bgr, boxes, self.conf.pad) if len(boxes) else bgr), boxes

@@ -98,7 +98,10 @@ def ncc_depth_loss(rendered: torch.Tensor, prior: torch.Tensor, valid: Optional[
     h, w = rendered.shape
     if valid is None:
         valid = torch.ones_like(rendered, dtype=torch.bool)
-    unfold = lambda t: F.unfold(t.reshape(1, 1, h, w).to(rendered.dtype), patch, stride=stride)[0]  # [K^2, P]
+
+    def unfold(t: torch.Tensor) -> torch.Tensor:  # [K^2, P]
+        return F.unfold(t.reshape(1, 1, h, w).to(rendered.dtype), patch, stride=stride)[0]
+
     d_hat, d, m = unfold(rendered), unfold(prior), unfold(valid.float())
     n = m.sum(0)  # [P]
     n_safe = n.clamp_min(1.0)
@@ -146,7 +149,10 @@ def normals_from_depth_pca(depth: torch.Tensor, K: torch.Tensor, window: int = 5
     valid = valid & (depth > 0)
     pts = backproject(depth, K.to(torch.float32))  # [H, W, 3]
     pad = window // 2
-    unf = lambda t: F.unfold(t.permute(2, 0, 1)[None], window, padding=pad)[0]  # [C*k2, HW]
+
+    def unf(t: torch.Tensor) -> torch.Tensor:  # [C*k2, HW]
+        return F.unfold(t.permute(2, 0, 1)[None], window, padding=pad)[0]
+
     k2 = window * window
     nb = unf(pts).reshape(3, k2, h * w) - pts.reshape(-1, 3).T[:, None]  # [3, k2, HW] centre-relative
     nb_d = unf(depth[..., None]).reshape(k2, h * w)

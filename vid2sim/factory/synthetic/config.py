@@ -95,7 +95,8 @@ def varied(seed: int, base: str = "test") -> StreetConfig:
            float(np.sin(elevation)))
     return preset(base, seed=seed, sidewalk_width=float(rng.uniform(2.4, 4.5)),
                   kerb_height=float(rng.uniform(0.06, 0.18)), kerb_width=float(rng.uniform(0.15, 0.35)),
-                  road_width=float(rng.uniform(5.0, 10.0)), facade_height_range=(float(low), float(low + rng.uniform(2.0, 10.0))),
+                  road_width=float(rng.uniform(5.0, 10.0)),
+                  facade_height_range=(float(low), float(low + rng.uniform(2.0, 10.0))),
                   building_width_range=(float(rng.uniform(3.5, 6.0)), float(rng.uniform(7.0, 14.0))),
                   facade_setback_range=(0.0, float(rng.uniform(0.0, 1.2))),
                   far_side_buildings=bool(rng.random() < 0.8), n_poles=int(rng.integers(1, 9)),
