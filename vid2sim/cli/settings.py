@@ -47,7 +47,7 @@ _UNITS = ("m/s^2", "m/s", "m^2", "m", "cm", "mm", "s", "ms", "Hz", "deg", "rad",
           "dB", "%", "kg", "1/m", "bytes", "MiB", "GiB")
 _UNIT_RE = re.compile(r"^(" + "|".join(re.escape(u) for u in sorted(_UNITS, key=len, reverse=True))
                       + r")(?:$|[,;:]\s*|\s+(?=\())")
-_UNIT_LEAD_RE = re.compile(r"^(m/s|m|s|Hz|deg|px)\s+(?!=)\w")  # "m above the ground"
+_UNIT_LEAD_RE = re.compile(r"^(m/s|m|s|Hz|deg|px)\s+\w")  # "m above the ground"
 # unit suffixes of field names (checked in order: the longest first)
 _NAME_UNITS = (("_m2", "m^2"), ("_mps", "m/s"), ("_deg", "deg"), ("_rad", "rad"), ("_px", "px"),
                ("_hz", "Hz"), ("_seconds", "s"), ("_s", "s"), ("_m", "m"), ("_fps", "fps"), ("fps", "fps"))
@@ -279,18 +279,6 @@ def _default_instance(cls: type) -> Any:
         return None
 
 
-def all_paths(cls: type, prefix: str = "") -> list[str]:
-    """Every dotted field path of a dataclass, from `dataclasses.fields` (nested ones too)."""
-    hints = type_hints(cls)
-    out = []
-    for f in dataclasses.fields(cls):
-        out.append(prefix + f.name)
-        sub = dataclass_type(hints.get(f.name, f.type))
-        if sub is not None:
-            out.extend(all_paths(sub, prefix + f.name + "."))
-    return out
-
-
 def format_rows(rows: Sequence[FieldDoc]) -> str:
     """`path: type = value [unit]  meaning` lines (a section's lines indented under it)."""
     out = []
@@ -328,12 +316,11 @@ def parse_value(tp: Any, raw: Any, path: str = "value") -> Any:
             return None
         raise _fail(path, tp, raw, "the field cannot be None")
     if len(inner) > 1:  # a real union: the first member that parses
-        reasons = []
         for member in inner:
             try:
                 return parse_value(member, raw, path)
-            except SettingError as e:
-                reasons.append(str(e))
+            except SettingError:
+                continue
         raise _fail(path, tp, raw)
     tp = inner[0]
     origin, args = typing.get_origin(tp), typing.get_args(tp)
@@ -516,12 +503,14 @@ def _apply_one(obj: Any, parts: list[str], raw: Any, prefix: str) -> Any:
 
 
 def _with_item_type(tp: Any, current: Any) -> Any:
-    """A bare `tuple` / `list` annotation made precise by the items of the current value
-    (`background: tuple = (0.0, 0.0, 0.0)` parses as tuple[float, ...])."""
+    """A bare `tuple` / `list` annotation made precise by the current value: a tuple keeps its
+    length and item type (`background: tuple = (0.0, 0.0, 0.0)` parses as tuple[float, float,
+    float]), a list its item type."""
     if tp in (tuple, list) and current and isinstance(current, (tuple, list)):
         kinds = {type(v) for v in current}
         if len(kinds) == 1 and kinds <= {int, float, str, bool}:
-            return tuple[kinds.pop(), ...] if tp is tuple else list[kinds.pop()]  # type: ignore[misc]
+            kind = kinds.pop()
+            return typing.Tuple[(kind,) * len(current)] if tp is tuple else list[kind]  # type: ignore[misc]
     return tp
 
 
