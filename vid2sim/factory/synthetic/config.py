@@ -75,7 +75,7 @@ class StreetConfig:
 
 PRESETS: dict[str, StreetConfig] = {
     "default": StreetConfig(),
-    # 10 s, 480p, 30 fps: the timing clip
+    # 10 s, 480p, 30 fps: the clip `vid2sim demo` builds (benchmarks/sfm.py uses it too)
     "demo": StreetConfig(duration_s=10.0),
     # tiny and fast for unit tests
     "test": StreetConfig(duration_s=1.0, width=160, height=90, write_depth=True),
