@@ -30,5 +30,20 @@ test-slow: $(STAMP)
 lint: $(STAMP)
 	$(BIN)/ruff check vid2sim tests benchmarks
 
+# The quick benchmark set (no external data, minutes on 2 cores): each run writes one
+# benchmarks/results/<name>-<UTC time>.json, then docs/benchmarks/*.md are rendered from them.
+bench: $(STAMP)
+	$(BIN)/python benchmarks/registry.py
+	$(BIN)/python benchmarks/registry_faults.py --quick
+	$(BIN)/python benchmarks/splats.py --quick
+	$(BIN)/python benchmarks/raster.py
+	$(BIN)/python benchmarks/envs_assets.py
+	$(BIN)/python benchmarks/synthetic_street.py
+	$(BIN)/python benchmarks/street_registry.py
+	$(BIN)/python benchmarks/meshing.py
+	$(BIN)/python benchmarks/env_render.py --quick
+	$(BIN)/python benchmarks/envs.py --quick
+	$(BIN)/python benchmarks/render_docs.py
+
 clean:
 	rm -rf $(VENV) vid2sim-registry .pytest_cache
