@@ -84,7 +84,7 @@ class MeshingConfig:
     # (docs/studies/physical_layer.md) the walked path gained on three and lost on one
     # (100 -> 98.2 %), accuracy median 0.051 -> 0.049 m on the demo street, completeness -0.5
     # to -0.7 points
-    trunc_voxels: float = 3.5
+    trunc_voxels: float = 3.5  # SDF truncation distance, in voxels (x voxel_m)
     depth_min_m: float = 0.1  # m, nearer splat depth is not fused
     # splat depth error grows with distance (median depth of the demo splats: 3-5 % relative,
     # plus floaters in the sky at 8-28 m); beyond ~8 m it exceeds the voxel size and the far
@@ -127,7 +127,7 @@ class MeshingConfig:
     # 99.3 -> 100 %. On the GoPro clip the more complete mesh holds ornamental grass 0.25-0.3 m
     # beside the walk's end, which a map cleared for 0.3 m blocked (path 95.1 %); the map now
     # clears the walker's body radius (`WalkableConfig.robot_radius_m`; docs/studies/physical_layer.md)
-    collision_tsdf: str = "blocks"
+    collision_tsdf: str = "blocks"  # TSDF engine of the collision volume: "blocks" | "legacy"
     fill_free_views: int = 1  # blocks engine: views that must see through an unobserved voxel to free it (0: off)
 
 

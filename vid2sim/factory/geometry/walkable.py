@@ -101,7 +101,7 @@ class WalkableConfig:
     # street seed 5 (docs/studies/physical_layer.md). Environments add their robot's own clearance on top
     # (`EpisodeConfig.clearance` is counted from the surface minus this, read back from the
     # bundle by `envs.scenes.walkable_inflation`), so their planners keep the same distance
-    robot_radius_m: float = BODY_RADIUS_M
+    robot_radius_m: float = BODY_RADIUS_M  # m, clearance a walkable cell's centre keeps from surfaces and kerbs
     # the robot's step: collision geometry lower than this above the local ground is ground
     # (dropped from the collision mesh when trim_collision, else only ignored by the map)
     obstacle_min_z_m: float = 0.1
