@@ -29,8 +29,8 @@ def show(
 ) -> None:
     """Every field (nested configs included) with its type, default, unit and one line of meaning.
 
-    A field's dotted path is what `--set PATH=VALUE` takes on `vid2sim ingest` (ingest section),
-    `vid2sim eval policy` (eval section) and `vid2sim train` (train section)."""
+    A field's dotted path is what `--set PATH=VALUE` takes: on `vid2sim ingest` the ingest paths, on `vid2sim eval
+    policy` the eval paths (env.PATH for its env config)."""
     if section is not None and section not in SECTIONS:
         typer.echo(f"error: unknown config section {section!r} ({' | '.join(SECTIONS)})", err=True)
         raise typer.Exit(2)
