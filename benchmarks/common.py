@@ -55,6 +55,8 @@ open3d, pybullet, gymnasium, stable-baselines3, numba, deltalake that is install
 Where the file goes: `--results PATH`, else the environment variable VID2SIM_BENCH_RESULTS,
 else benchmarks/results/. A PATH that is an existing folder or ends with "/" is a folder
 (the file is named <benchmark>-<UTC timestamp>.json in it); anything else is the file itself.
+The files in benchmarks/results/ are committed (a few KB each): the docs pages are rendered
+from them, so commit a run's file together with the pages it changes.
 """
 
 from __future__ import annotations
