@@ -121,7 +121,7 @@ def test_expert_route_keeps_the_same_distance_from_obstacles_on_a_pre_inflated_m
     start, goal = (2.0, 0.0), (18.0, 0.0)
 
     def gap(pre: float, clearance: float) -> float:
-        route = EpisodeActors._route(grid, clearance, [cone], start, goal, pre)
+        route = EpisodeActors._route_planner(grid, clearance, [cone], pre).plan(start, goal)
         return float(np.linalg.norm(route - np.array(cone.xy), axis=1).min())
 
     gt_like = gap(0.0, 0.45)  # a GT map: the planner keeps the whole 0.45 m clearance

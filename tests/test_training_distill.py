@@ -157,6 +157,7 @@ def test_bad_distill_settings_are_refused():
         TrainConfig(run_dir="x", total_steps=10, method="ppo")
 
 
+@pytest.mark.slow
 def test_collection_on_ray_actors(street_registry, tmp_path):
     path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
     init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})

@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from vid2sim.cli.settings import apply_or_exit
 from vid2sim.training.actions import check_map
 from vid2sim.training.config import METHODS, DistillConfig, SACConfig, TrainConfig
 from vid2sim.training.distill import summary, train_distill
@@ -104,11 +105,17 @@ def train_command(
                                                 "sets) shared between runs (default: RUN/scenes)."),
     resume: bool = typer.Option(False, "--resume", help="Continue the run from its checkpoint, with its recorded "
                                                         "config (only --steps may change)."),
+    sets: Optional[list[str]] = typer.Option(None, "--set", help="Override a TrainConfig field: section.field=value "
+                                             "(e.g. distill.beta_decay=0.7, sac.tau=0.01); see `vid2sim config show "
+                                             "train`. Repeatable."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster (default: local runtime)."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", help="Local Ray runtime CPUs."),
 ) -> None:
     """Train SAC (paper preset) or distil a pixel student from the A* teacher on a registry split's training scenes."""
     if resume:
+        if sets:
+            typer.echo(f"error: --set is refused with --resume: {run_dir} keeps its recorded config", err=True)
+            raise typer.Exit(2)
         config = _resumed_config(run_dir, steps)
     else:
         env_kwargs: dict = {"variant": variant}
@@ -121,6 +128,7 @@ def train_command(
                              sac=_sac(learning_starts, batch_size, buffer_size), method=method,
                              stuck_steps=(stuck_steps or None) if method == "distill" else None,
                              distill=_distill(steps_per_round, updates_per_round, beta_decay, frames, pool, shift_pad))
+        config = apply_or_exit(config, sets)
     if config.n_actors > 0:
         _ray(ray_address, num_cpus)
     if config.method == "distill":

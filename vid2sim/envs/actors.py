@@ -43,6 +43,8 @@ class EpisodeActors:
         self.obstacles: Optional[ObstacleSet] = None
         self.crowd: Optional[Crowd] = None
         self.expert_path: Optional[np.ndarray] = None  # [K, 2]
+        self.route_planner: Optional[GridPlanner] = None  # the map with the static obstacles blocked
+        self.goal: Optional[tuple[float, float]] = None
 
     def spawn(self, grid: WalkableGrid, planner: GridPlanner, path: np.ndarray, rng: np.random.Generator,
               obstacles: ObstacleConfig, pedestrians: int, pre_inflated: float = 0.0) -> None:
@@ -55,27 +57,38 @@ class EpisodeActors:
         placements = place_on_corridor(path, rng, obstacles, is_walkable=planner.is_free)
         start, goal = (float(path[0, 0]), float(path[0, 1])), (float(path[-1, 0]), float(path[-1, 1]))
         while True:
-            route = self._route(grid, planner.clearance, placements, start, goal, pre_inflated)
+            self.route_planner = self._route_planner(grid, planner.clearance, placements, pre_inflated)
+            route = self.route_planner.plan(start, goal)
             if route is not None or not placements:
                 break
             placements = placements[:-1]
         self.expert_path = route if route is not None else path
+        self.goal = goal
         self.obstacles = ObstacleSet(self.client_id, placements)
         self.crowd = (Crowd(planner, pedestrians, rng, self.client_id, avoid=[start, goal])
                       if pedestrians > 0 else None)
 
     @staticmethod
-    def _route(grid: WalkableGrid, clearance: float, placements: Sequence[Placement],
-               start: tuple[float, float], goal: tuple[float, float], pre_inflated: float = 0.0
-               ) -> Optional[np.ndarray]:
-        """A* path around the static obstacles' footprints, or None when they block the way."""
+    def _route_planner(grid: WalkableGrid, clearance: float, placements: Sequence[Placement],
+                       pre_inflated: float = 0.0) -> GridPlanner:
+        """A* planner on the map with the static obstacles' footprints blocked."""
         static = [p for p in placements if not p.dynamic]
         occ = occupancy(static, grid.origin, grid.resolution, grid.grid.shape)  # [H, W] bool
         if occ.any():  # footprints grown by the margin (+ what the map's obstacles already got)
             grow = OBSTACLE_MARGIN + max(pre_inflated, 0.0)
             occ = ndimage.distance_transform_edt(~occ) <= grow / grid.resolution
         blocked = WalkableGrid((grid.grid > 0) & ~occ, grid.origin, grid.resolution)
-        return GridPlanner(blocked, clearance=clearance).plan(start, goal)
+        return GridPlanner(blocked, clearance=clearance)
+
+    def replan(self, x: float, y: float) -> Optional[np.ndarray]:
+        """A* path [K, 2] from (x, y) to the episode's goal around the static obstacles (it becomes
+        the expert path), or None when there is none from there (the expert path stays)."""
+        if self.route_planner is None or self.goal is None:
+            return None
+        route = self.route_planner.plan((x, y), self.goal)
+        if route is not None:
+            self.expert_path = route
+        return route
 
     def step(self, dt: float, robot_xy: tuple[float, float]) -> tuple[float, float]:
         """Advance falling obstacles and walkers by dt; returns their seconds (obstacles, people)."""
@@ -123,4 +136,4 @@ class EpisodeActors:
         if self.crowd is not None:
             self.crowd.remove()
         self.obstacles = self.crowd = None
-        self.expert_path = None
+        self.expert_path = self.route_planner = self.goal = None

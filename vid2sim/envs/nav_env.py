@@ -303,6 +303,10 @@ class NavEnv(gym.Env):
         """A* waypoints [K, 2] the scripted expert follows (obstacles avoided)."""
         return self.actors.expert_path
 
+    def replan_expert_path(self) -> Optional[np.ndarray]:
+        """Re-plan the expert's A* path from the robot's position (None: no path from here)."""
+        return self.actors.replan(self.state.x, self.state.y)
+
     def robot_pose(self) -> tuple[float, float, float]:
         return self.state.x, self.state.y, self.state.yaw
 

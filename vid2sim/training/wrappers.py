@@ -17,7 +17,10 @@ looks safer to a young critic than driving past walls (-10 per crash), and SAC l
 (teacher-student distillation): `info["teacher_action"]` [2] and `info["teacher_stuck"]` after
 `reset` and after every step that does not end the episode. `teacher_stuck` is True while the
 expert is in its blocked-pose recovery (alternating full lock): those labels depend on the
-expert's own history, not on what the camera sees, and the learner drops them.
+expert's own history, not on what the camera sees, and the learner drops them. When the robot
+is more than `replan_distance` m from the expert's path (the student drove elsewhere, e.g. round
+the other side of an obstacle), the path is re-planned from the robot's position, so the label is
+the way to the goal from where the robot is, not back to a path it left.
 """
 
 from __future__ import annotations
@@ -68,14 +71,26 @@ class TeacherError(RuntimeError):
 class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
-    def __init__(self, env: gym.Env) -> None:
+    def __init__(self, env: gym.Env, replan_distance: float = 0.3) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
             raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
                                "path (the scripted teacher acts only in vid2sim navigation envs)")
         self.expert = PurePursuitExpert()
+        self.replan_distance = replan_distance
+        self.replans = 0
+
+    def _off_path(self) -> bool:
+        x, y, _ = self.env.unwrapped.robot_pose()
+        path = self.expert.path
+        return float(np.min(np.hypot(path[:, 0] - x, path[:, 1] - y))) > self.replan_distance
 
     def _label(self, info: dict) -> dict:
+        if self.replan_distance > 0 and self._off_path():
+            path = self.env.unwrapped.replan_expert_path()
+            if path is not None:
+                self.expert.path, self.expert.index = np.asarray(path, np.float64), 0
+                self.replans += 1
         action = self.expert.act(self.env)
         return {**info, "teacher_action": action, "teacher_stuck": self.expert.stuck > 0}
 
