@@ -29,8 +29,7 @@ def show(
 ) -> None:
     """Every field (nested configs included) with its type, default, unit and one line of meaning.
 
-    A field's dotted path is what `--set PATH=VALUE` takes: on `vid2sim ingest` the ingest paths, on `vid2sim eval
-    policy` the eval paths (env.PATH for its env config)."""
+    The paths are what `--set PATH=VALUE` takes on `vid2sim ingest` (ingest) and `vid2sim eval policy` (eval)."""
     if section is not None and section not in SECTIONS:
         typer.echo(f"error: unknown config section {section!r} ({' | '.join(SECTIONS)})", err=True)
         raise typer.Exit(2)
