@@ -29,7 +29,7 @@ def show(
 ) -> None:
     """Every field (nested configs included) with its type, default, unit and one line of meaning.
 
-    The paths are what `--set PATH=VALUE` takes on `vid2sim ingest` (ingest) and `vid2sim eval policy` (eval)."""
+    The paths are what `--set PATH=VALUE` takes on `vid2sim ingest`, `vid2sim train` and `vid2sim eval policy`."""
     if section is not None and section not in SECTIONS:
         typer.echo(f"error: unknown config section {section!r} ({' | '.join(SECTIONS)})", err=True)
         raise typer.Exit(2)
