@@ -47,7 +47,7 @@ the script), status ("ok", or "failed: ..." when the block raised: the renderer 
 started_utc / started_unix / finished_utc / duration_s, command (shell-quoted, python
 relative to the repo), argv, cwd, args (the argparse namespace), config (`run.config`, free-form), env (the
 VID2SIM_* / OMP_* / NUMBA_* / CUDA_VISIBLE_DEVICES variables set), hardware (cpu_model,
-cores, memory_gib, gpu or null, platform), load (1/5/15-min load average at start and end),
+cores, memory_gib, gpu or null, platform), load (the 1/5/15-min loadavg at start and end),
 git (commit, dirty, branch), versions (python and each of numpy, torch, ray, pycolmap,
 open3d, pybullet, gymnasium, stable-baselines3, numba, deltalake that is installed), notes
 (skips and remarks) and rows.
@@ -169,9 +169,9 @@ def command_line(argv: Optional[list[str]] = None) -> str:
 
 
 def hardware_line() -> str:
-    """CPU model, cores, load average and Python: enough to compare figures across runs."""
+    """CPU model, cores, loadavg and Python: enough to compare figures across runs."""
     load = load_avg()
-    return (f"{cpu_model()}; {os.cpu_count()} cores; load avg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
+    return (f"{cpu_model()}; {os.cpu_count()} cores; loadavg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
             f"{platform.python_implementation()} {platform.python_version()}")
 
 

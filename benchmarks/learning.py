@@ -1,4 +1,4 @@
-"""Learnability at CPU budgets (issue 13): privileged agent, pixel agent, baselines, a tiny study.
+"""Learnability at CPU budgets: privileged agent, pixel agent, baselines, a tiny study.
 
     python benchmarks/learning.py sanity --trials 20    # scripted policies' returns under the reward
     python benchmarks/learning.py privileged --steps 40000 [--warmup random --bc-weight 0] [--root ...]
@@ -45,7 +45,7 @@ from vid2sim.training.wrappers import StuckTermination  # noqa: E402
 
 PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, gradient_steps=5, train_freq=1,
                      use_sde=False, warmup="expert", ent_coef="auto_0.01", net_arch=(128, 128),
-                     bc_weight=1.0)  # with --rays 31 --max-range 2.5 --action-map full (the defaults): README run r
+                     bc_weight=1.0)  # with --rays 31 --max-range 2.5 --action-map full (the defaults): docs/studies/privileged_agent.md
 
 
 def header() -> None:

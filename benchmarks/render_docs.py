@@ -117,7 +117,7 @@ def run_facts(run: dict) -> list[str]:
            f"- commit: {commit}",
            f"- date: {date}, {run['duration_s']:.0f} s",
            f"- hardware: {hw['cpu_model']}, {hw['cores']} cores, {hw['memory_gib']} GiB RAM, {gpu}; "
-           f"1-min load {load['start'][0]:.2f} at start, {load['end'][0]:.2f} at end",
+           f"1-min loadavg {load['start'][0]:.2f} at start, {load['end'][0]:.2f} at end",
            f"- versions: {vers}"]
     if run.get("env"):
         out.append("- environment: " + ", ".join(f"`{k}={v}`" for k, v in run["env"].items()))

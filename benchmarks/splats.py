@@ -228,7 +228,7 @@ def bench(run: Run, quick: bool) -> None:
         ratio = ratio_table(run, 100_000, (320, 180))
     sizes = (10_000, 100_000) if quick else (10_000, 100_000, 500_000)
     forward_table(run, sizes, ((128, 72), (640, 360)))
-    print(f"\nload average at end: {os.getloadavg()}")
+    print(f"\nloadavg at end: {os.getloadavg()}")
     probe1 = run.record("core probe", "speedup_at_end", core_probe(), "x", {"threads": ALL})
     print(f"core probe at end: x{probe1:.2f} (multi-thread rows are capped by this)")
     ex, lod = static["exact SH0"], static["LOD 0.25 px SH0"]

@@ -1,8 +1,8 @@
 """Privileged-observation PointNav: the goal vector plus range readings instead of pixels.
 
-Used to show that the task, reward and episode set are learnable at CPU budgets (issue 13)
-before spending pixel-SAC compute. Same scenes, episodes, dynamics, reward and metrics as
-`vid2sim/PointNav-v0` (it subclasses `NavEnv`); only the observation differs and the camera is
+Used to show that the task, reward and episode set are learnable at CPU budgets before
+spending pixel-SAC compute (docs/studies/privileged_agent.md). Same scenes, episodes, dynamics,
+reward and metrics as `vid2sim/PointNav-v0` (it subclasses `NavEnv`); only the observation differs and the camera is
 not rendered. Observation (float32, flat):
   [distance / 30, heading / pi,
    N mesh ranges / R  (pybullet `rayTestBatch` from the robot centre at 0.3 m height against the

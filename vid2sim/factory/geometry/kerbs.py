@@ -43,7 +43,7 @@ class KerbConfig:
     # bins without ground (a planter or a parked car hides the sidewalk's outer part from a
     # forward-looking camera): a drop between the last seen sidewalk and the first seen road
     # is found where the road is first seen again. 0: the inward bins must adjoin. Demo
-    # street (benchmarks/meshing.py rows 6 / 27 / 28): walkable IoU 0.702 -> 0.797
+    # street (benchmarks/meshing.py variants default / kerb_gap_1m / kerb_gap_0): walkable IoU 0.702 -> 0.797
     # (1 m) -> 0.809 (2 m), the unseen sidewalk behind a planter grows up to the kerb and the
     # road beside it is no longer walkable; an earlier build 0.766 -> 0.798; exact GT 0.895
     # unchanged; GoPro builds: path unchanged, walkable area -0.2 m^2 at most
