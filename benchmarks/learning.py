@@ -45,11 +45,13 @@ from vid2sim.training.wrappers import StuckTermination  # noqa: E402
 
 PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, gradient_steps=5, train_freq=1,
                      use_sde=False, warmup="expert", ent_coef="auto_0.01", net_arch=(128, 128),
-                     bc_weight=1.0)  # with --rays 31 --max-range 2.5 --action-map full (the defaults): docs/studies/privileged_agent.md
+                     bc_weight=1.0)  # with --rays 31 --max-range 2.5 --action-map full (the defaults):
+# docs/studies/privileged_agent.md
 
 
 def header() -> None:
-    print(f"# {platform.machine()}, {os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}; command: {' '.join(sys.argv)}",
+    print(f"# {platform.machine()}, {os.cpu_count()} cores, loadavg {os.getloadavg()[0]:.1f}; "
+          f"command: {' '.join(sys.argv)}",
           flush=True)
 
 
@@ -74,7 +76,8 @@ def run_privileged(args) -> None:
                          env_kwargs={"training": True, "max_steps": args.train_max_steps, **rays(args)},
                          registry=reg, n_envs=args.n_envs, n_actors=0, seed=args.seed, checkpoint_every=5000,
                          action_map=args.action_map,
-                         stuck_steps=args.stuck_steps or None, sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
+                         stuck_steps=args.stuck_steps or None,
+                         sac=replace(PRIV_SAC, use_sde=args.sde, warmup=args.warmup,
                                                  learning_starts=args.learning_starts, ent_coef=args.ent_coef,
                                                  gradient_steps=args.gradient_steps, bc_weight=args.bc_weight,
                                                  bc_pretrain_steps=args.bc_pretrain,
@@ -284,7 +287,9 @@ def main() -> None:
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     header()
-    {"failures": run_failures, "heldout": run_heldout, "curve": run_curve, "sanity": run_sanity, "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}[args.what](args)
+    commands = {"failures": run_failures, "heldout": run_heldout, "curve": run_curve, "sanity": run_sanity,
+                "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}
+    commands[args.what](args)
     print(f"# load after: {os.getloadavg()[0]:.1f}")
 
 

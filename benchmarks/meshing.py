@@ -119,7 +119,8 @@ def run_gt(args) -> dict:
                 visual_faces=res.summary["visual_faces"],
                 accuracy_m=round(acc, 4), completeness_visible_m=round(comp, 4),
                 chamfer_m=round((acc + comp) / 2, 4),
-                walkable_iou=round(grid_iou(wm_crop, gt_crop), 4), iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
+                walkable_iou=round(grid_iou(wm_crop, gt_crop), 4),
+                iou_x_range=[round(float(x0), 2), round(float(x1), 2)],
                 walkable_area_m2=round(wm.area_m2(), 2), variant=args.variant,
                 **corridor_check(wm, collision, T[:, :3, 3]).to_dict(), **miss_row(layer, T[:, :3, 3], wconf))
 

@@ -44,7 +44,8 @@ def skipped(reason: str) -> None:
     print(f"[real] skipped: {reason}")
 
 
-def synthetic_clip(work: Path, seconds: float, width: int, n_points: int, jitter: float, seed: int) -> tuple[Path, Path]:
+def synthetic_clip(work: Path, seconds: float, width: int, n_points: int, jitter: float,
+                   seed: int) -> tuple[Path, Path]:
     """Render the street (cached) and write an SfM-like PosedClip beside it; returns (posed, depth dir)."""
     from vid2sim.factory.synthetic.config import preset
     from vid2sim.factory.synthetic.make_street import main as synth

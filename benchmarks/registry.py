@@ -107,7 +107,8 @@ def bench(args: argparse.Namespace) -> None:
     tmp = Path(tempfile.mkdtemp(prefix="vid2sim-bench-"))
     root = Path(args.root) if args.root else tmp / "reg"
     try:
-        bundles = [make_bundle(tmp / f"b{i}", f"bench-{i:04d}", group=f"g{i % 7}", seed=i) for i in range(args.adds + 20)]
+        bundles = [make_bundle(tmp / f"b{i}", f"bench-{i:04d}", group=f"g{i % 7}", seed=i)
+                   for i in range(args.adds + 20)]
         manual = RegistryConfig(auto_compact_files=0)
         reg = Registry(root, config=manual)
         adds = [b for b in bundles[:args.adds]]
@@ -116,7 +117,8 @@ def bench(args: argparse.Namespace) -> None:
             t = time.perf_counter()
             reg.add(b)
             lat.append(time.perf_counter() - t)
-        print(f"add (empty registry -> {args.adds} scenes):      {stats(lat, f'add, empty registry -> {args.adds} scenes')}")
+        case = f"add, empty registry -> {args.adds} scenes"
+        print(f"add (empty registry -> {args.adds} scenes):      {stats(lat, case)}")
         print(f"re-add identical (no-op):                "
               f"{stats(timed(lambda: reg.add(adds[0]), 10), 're-add identical (no-op)')}")
 
@@ -144,10 +146,10 @@ def bench(args: argparse.Namespace) -> None:
             print(f"list warm:                               {stats(timed(lambda: reg.list(), 5), 'list warm' + at)}")
             print(f"split (seed, 20% test, train 1/5/15/100): "
                   f"{stats(timed(lambda: reg.split(seed=1, train_sizes=(1, 5, 15, 100)), 5), 'split' + at)}")
-            print(f"split with tag + psnr filter:            "
-                  f"{stats(timed(lambda: reg.split(seed=1, tags=('night',), min_metrics={'psnr': 20}), 5), 'split with tag + psnr filter' + at)}")
-            print(f"query (count latest by group):           "
-                  f"{stats(timed(lambda: reg.query('select source_group, count(*) from latest group by 1'), 5), 'query count latest by group' + at)}")
+            filtered = timed(lambda: reg.split(seed=1, tags=('night',), min_metrics={'psnr': 20}), 5)
+            print(f"split with tag + psnr filter:            {stats(filtered, 'split with tag + psnr filter' + at)}")
+            grouped = timed(lambda: reg.query('select source_group, count(*) from latest group by 1'), 5)
+            print(f"query (count latest by group):           {stats(grouped, 'query count latest by group' + at)}")
             print(f"tag commit:                              "
                   f"{stats(timed(lambda: reg.tag('bulk-000001', f't{next(names)}'), 10), 'tag commit' + at)}")
             print(f"add commit:                              "
@@ -160,7 +162,8 @@ def bench(args: argparse.Namespace) -> None:
         sustained(root, args.sustained, RegistryConfig)
         t = time.perf_counter()
         problems = reg.verify()
-        RUN.record_all(f"verify, {args.rows} scenes", {"seconds": time.perf_counter() - t, "blobs": len(reg.referenced()),
+        RUN.record_all(f"verify, {args.rows} scenes",
+                       {"seconds": time.perf_counter() - t, "blobs": len(reg.referenced()),
                                                        "problems": len(problems)}, {"seconds": "s"})
         print(f"verify ({len(reg.referenced())} blobs): {time.perf_counter() - t:.2f} s, problems: {len(problems)}")
     finally:

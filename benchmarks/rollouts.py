@@ -56,7 +56,8 @@ def bench(run: Run, args: argparse.Namespace) -> None:
     init_ray(num_cpus=2)
     results = {}
     backends = {"DummyVecEnv": lambda: DummyVecEnv([s.make for s in specs]),
-                "SubprocVecEnv": lambda: SubprocVecEnv([s.make for s in specs], start_method="spawn"),  # deltalake's tokio runtime is not fork-safe
+                # spawn: deltalake's tokio runtime is not fork-safe
+                "SubprocVecEnv": lambda: SubprocVecEnv([s.make for s in specs], start_method="spawn"),
                 "RayVecEnv 1 actor": lambda: RayVecEnv(specs, RayVecEnvConfig(n_actors=1)),
                 "RayVecEnv 2 actors": lambda: RayVecEnv(specs, RayVecEnvConfig(n_actors=2))}
     for name, make in backends.items():

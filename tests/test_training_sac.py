@@ -21,7 +21,8 @@ ACT = gym.spaces.Box(-1, 1, (2,), np.float32)
 
 def test_paper_preset():
     sac = SACConfig()
-    assert (sac.tau, sac.gamma, sac.batch_size, sac.learning_rate, sac.learning_starts) == (0.005, 0.99, 256, 3e-4, 10_000)
+    assert (sac.tau, sac.gamma, sac.batch_size, sac.learning_rate, sac.learning_starts) == \
+        (0.005, 0.99, 256, 3e-4, 10_000)
     assert sac.use_sde and sac.use_sde_at_warmup and sac.sde_sample_freq == 64
 
 

@@ -186,6 +186,7 @@ def study_command(
     for col in ("scenes", "seed", "SR", "SPL", "Cost", "train s"):
         table.add_column(col)
     for r in rows:
-        table.add_row(str(r.count), str(r.seed), f"{r.sr:.2f}", f"{r.spl:.2f}", f"{r.cost:.2f}", f"{r.train_wall_s:.0f}")
+        table.add_row(str(r.count), str(r.seed), f"{r.sr:.2f}", f"{r.spl:.2f}", f"{r.cost:.2f}",
+                      f"{r.train_wall_s:.0f}")
     Console().print(table)
     typer.echo(f"plot: {out_dir}/study.png")

@@ -4,7 +4,8 @@ The envs' contract (the paper's, `NavEnv.step`): a[0] speed in [-1, 1] is clampe
 (x max_speed, no reverse), a[1] steering in [-1, 1]. For a learned policy that contract leaves
 half of the speed range meaning "stop": a Gaussian / tanh policy can park its mean there at no
 risk, and a deterministic evaluation then stands still (measured: speed < 0 in most held-out
-timeouts of the pixel SAC agent, docs/studies/privileged_agent.md). A mapping changes only what the policy's output means:
+timeouts of the pixel SAC agent, docs/studies/privileged_agent.md). A mapping changes only what
+the policy's output means:
 
   "clamp": identity (the envs' contract; the default, what the paper's agent uses);
   "full":  policy speed p in [-1, 1] -> env speed (p + 1) / 2 in [0, 1]; steering unchanged.

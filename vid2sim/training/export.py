@@ -5,7 +5,8 @@ The exported graph is the deterministic SAC actor, or the distilled pixel studen
 uint8 frames in (scaled to [0, 1] inside), the goal vector in metres / radians (scaled inside),
 `tanh` squashing, the action-space rescale, a clamp to [low, high] and the policy's action
 mapping (`model.action_map`, `vid2sim.training.actions`: "full" maps speed to (p + 1) / 2).
-Output: normalised [speed, steering] in the envs' contract, [-1, 1] (speed <= 0 means stop). TorchScript is not shipped: PyTorch marks it deprecated in favour
+Output: normalised [speed, steering] in the envs' contract, [-1, 1] (speed <= 0 means stop).
+TorchScript is not shipped: PyTorch marks it deprecated in favour
 of `torch.export`, and robot stacks (Isaac Lab, SB3's export guide) consume ONNX.
 
 `NavPolicy` is the inference API: feed one camera frame plus the odometry (distance and heading
