@@ -11,7 +11,7 @@
 Scenes: synthetic-street ground-truth bundles (benchmarks/street_registry.py, seeds 1-6); the
 registry's split (seed 0) holds out whole streets. Held-out episodes: `vid2sim eval policy`'s
 protocol (test scenes x trials, seeds 1000 + k, 0-5 static obstacles where the envs place them,
-no jitter). Every figure prints its budget (env steps) and the machine load.
+no jitter). Every figure prints its budget (env steps); the harness records the hardware and commit.
 """
 
 from __future__ import annotations
@@ -19,8 +19,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
 import sys
 import time
 from collections import Counter
@@ -32,6 +30,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import torch  # noqa: E402
+from common import Run, add_run_args  # noqa: E402
 from street_registry import build  # noqa: E402
 
 from vid2sim.envs.expert import PurePursuitExpert  # noqa: E402
@@ -49,10 +48,7 @@ PRIV_SAC = SACConfig(learning_starts=5000, batch_size=256, buffer_size=200_000, 
 # docs/studies/privileged_agent.md
 
 
-def header() -> None:
-    print(f"# {platform.machine()}, {os.cpu_count()} cores, loadavg {os.getloadavg()[0]:.1f}; "
-          f"command: {' '.join(sys.argv)}",
-          flush=True)
+RUN = None  # the harness run (benchmarks/common.py) of this invocation
 
 
 def report(name: str, rep, budget: str) -> dict:
@@ -60,6 +56,9 @@ def report(name: str, rep, budget: str) -> dict:
     row = {"agent": name, "budget": budget, "episodes": rep.episodes,
            **{k: [round(m[k].mean, 3), round(m[k].low, 3), round(m[k].high, 3)] for k in ("sr", "spl", "cost")}}
     print(json.dumps(row), flush=True)
+    for k in ("sr", "spl", "cost"):
+        RUN.record(name, k, m[k].mean, "", {"ci95": [m[k].low, m[k].high], "episodes": rep.episodes,
+                                            "budget": budget})
     return row
 
 
@@ -284,13 +283,14 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=Path("learning_curve.png"), help="curve: PNG path")
     ap.add_argument("--privileged", action="store_true", help="baselines: on the privileged env (same episodes)")
     ap.add_argument("--threads", type=int, default=1, help="torch intra-op threads (1: steadier on a shared machine)")
+    add_run_args(ap)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    header()
+    global RUN
     commands = {"failures": run_failures, "heldout": run_heldout, "curve": run_curve, "sanity": run_sanity,
                 "privileged": run_privileged, "pixel": run_pixel, "baselines": run_baselines}
-    commands[args.what](args)
-    print(f"# load after: {os.getloadavg()[0]:.1f}")
+    with Run("learning", args) as RUN:
+        commands[args.what](args)
 
 
 if __name__ == "__main__":
