@@ -111,6 +111,12 @@ def test_preprocessed_inputs_give_the_deployed_actions():
     np.testing.assert_array_equal(stored, expected.numpy().astype(np.uint8))
 
 
+def test_frame_stride_picks_every_kth_frame_back_from_the_latest():
+    student = StudentPolicy(StudentConfig(frames=3, frame_stride=2, pool=1), (6, 1, 4, 4), (6, 2))
+    image = torch.arange(6, dtype=torch.uint8).reshape(1, 6, 1, 1, 1).expand(1, 6, 1, 4, 4)
+    assert student.preprocess(image)[0, :, 0, 0, 0].tolist() == [1.0, 3.0, 5.0]
+
+
 def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():
     frames = torch.arange(2 * 2 * 1 * 6 * 8, dtype=torch.float32).reshape(2, 2, 1, 6, 8)
     assert torch.equal(random_shift(frames, 0), frames)
@@ -153,6 +159,8 @@ def test_bad_distill_settings_are_refused():
         DistillConfig(beta_decay=1.5)
     with pytest.raises(ValueError, match="frames"):
         StudentConfig(frames=7)
+    with pytest.raises(ValueError, match="frame_stride"):
+        StudentConfig(frames=3, frame_stride=3)
     with pytest.raises(ValueError, match="method"):
         TrainConfig(run_dir="x", total_steps=10, method="ppo")
 

@@ -19,7 +19,7 @@ from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
 from vid2sim.training.sac import train
 from vid2sim.training.student import StudentConfig
-from vid2sim.training.study import StudyConfig, run_study
+from vid2sim.training.study import StudyConfig, aggregate, run_study
 
 DEFAULT_STEPS = {"sac": 1_500_000, "distill": 80_000}  # the paper's SAC budget; a 2-core CPU distillation
 
@@ -189,4 +189,11 @@ def study_command(
         table.add_row(str(r.count), str(r.seed), f"{r.sr:.2f}", f"{r.spl:.2f}", f"{r.cost:.2f}",
                       f"{r.train_wall_s:.0f}")
     Console().print(table)
+    summary_table = Table(title="per count: SR mean over seeds, 95 % interval over the pooled held-out episodes")
+    for col in ("scenes", "seeds", "SR", "SR 95% CI", "SPL"):
+        summary_table.add_column(col)
+    for n, agg in aggregate(rows).items():
+        ci = f"[{agg['sr_ci_low']:.2f}, {agg['sr_ci_high']:.2f}]" if "sr_ci_low" in agg else "-"
+        summary_table.add_row(n, str(agg["seeds"]), f"{agg['sr_mean']:.2f}", ci, f"{agg['spl_mean']:.2f}")
+    Console().print(summary_table)
     typer.echo(f"plot: {out_dir}/study.png")

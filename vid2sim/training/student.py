@@ -6,7 +6,8 @@ goal in m, heading to the goal / pi). Output: [B, 2] (speed, steering) in [-1, 1
 contract (speed <= 0 stops).
 
 Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the export):
-- the last `frames` frames only (default 2: the current view and one 0.2 s back, for motion),
+- `frames` of the 6 stacked frames, every `frame_stride`-th back from the latest (default 2 x 1:
+  the current view and one 0.2 s back, for motion),
   average-pooled by `pool` (default 2: 36 x 64 pixels), rounded to integers so the stored
   training inputs and the deployed graph see the same numbers;
 - one small conv encoder shared by the frames (weights shared, features concatenated), about
@@ -35,7 +36,8 @@ STACK = 6  # frames in the env observation
 class StudentConfig:
     """Encoder and input size of the pixel student (see the module docs)."""
 
-    frames: int = 2  # most recent frames the student looks at (1..6)
+    frames: int = 2  # stacked frames the student looks at (1..6), the most recent one last
+    frame_stride: int = 1  # every k-th stacked frame back from the latest (2 with 3 frames: t-4, t-2, t)
     pool: int = 2  # average-pooling factor of the 72 x 128 frames (1: full size)
     channels: tuple[int, ...] = (16, 32, 32, 32)  # conv widths; first conv 5x5 stride 2, then 3x3 strides 2, 2, 1
     frame_dim: int = 128  # features per frame
@@ -45,6 +47,9 @@ class StudentConfig:
     def __post_init__(self) -> None:
         if not 1 <= self.frames <= STACK:
             raise ValueError(f"student frames must be in 1..{STACK}, got {self.frames}")
+        if self.frame_stride < 1 or (self.frames - 1) * self.frame_stride + 1 > STACK:
+            raise ValueError(f"student frames x frame_stride must fit the {STACK} stacked frames, got "
+                             f"{self.frames} x {self.frame_stride}")
         if self.pool < 1:
             raise ValueError(f"student pool must be >= 1, got {self.pool}")
         self.channels = tuple(int(c) for c in self.channels)
@@ -73,8 +78,10 @@ class StudentPolicy(nn.Module):
         self.config = config
         self.image_shape, self.vector_shape = tuple(image_shape), tuple(vector_shape)  # [6, C, H, W], [6, 2]
         stack, channels, height, width = self.image_shape
-        if stack < config.frames:
-            raise ValueError(f"the observation stacks {stack} frames, the student wants {config.frames}")
+        self.frame_index = [stack - 1 - k * config.frame_stride for k in reversed(range(config.frames))]
+        if self.frame_index[0] < 0:
+            raise ValueError(f"the observation stacks {stack} frames, the student wants {config.frames} "
+                             f"every {config.frame_stride}")
         self.channels = channels
         self.encoder = frame_encoder(channels, config.channels)
         with torch.no_grad():
@@ -96,7 +103,7 @@ class StudentPolicy(nn.Module):
 
     def preprocess(self, image: torch.Tensor) -> torch.Tensor:
         """uint8/float [B, 6, C, H, W] -> float [B, frames, C, h, w] of integers in 0..255."""
-        x = image[:, -self.config.frames:].float()
+        x = image[:, self.frame_index].float()
         b, k, c, h, w = x.shape
         if self.config.pool > 1:
             x = F.avg_pool2d(x.reshape(b * k, c, h, w), self.config.pool).reshape(b, k, c, h // self.config.pool,

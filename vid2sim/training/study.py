@@ -147,7 +147,13 @@ def plot(rows: list[StudyRow], path: Path, config: Optional[StudyConfig] = None)
         for r in rows:
             ax.plot(r.count, getattr(r, key), "o", color="0.7", ms=4)
         ax.errorbar(counts, [agg[str(n)][f"{key}_mean"] for n in counts],
-                    yerr=[agg[str(n)][f"{key}_std"] for n in counts], marker="s", capsize=4)
+                    yerr=[agg[str(n)][f"{key}_std"] for n in counts], marker="s", capsize=4,
+                    label="mean +- std over seeds")
+        if key == "sr" and all("sr_ci_low" in agg[str(n)] for n in counts):
+            ax.fill_between(counts, [agg[str(n)]["sr_ci_low"] for n in counts],
+                            [agg[str(n)]["sr_ci_high"] for n in counts], alpha=0.2,
+                            label="95 % CI, pooled episodes")
+            ax.legend(fontsize=7, loc="lower right")
         ax.set_xlabel("training scenes")
         ax.set_ylabel(label)
         ax.set_ylim(-0.05, 1.05)
