@@ -16,22 +16,22 @@ METHODS = ("sac", "distill")
 class SACConfig:
     """SAC hyper-parameters; the defaults are the paper's preset (supplementary, SAC table)."""
 
-    learning_rate: float = 3e-4
-    batch_size: int = 256
-    tau: float = 0.005
-    gamma: float = 0.99
-    learning_starts: int = 10_000
+    learning_rate: float = 3e-4  # Adam step size of actor, critic and entropy coefficient
+    batch_size: int = 256  # transitions per gradient step
+    tau: float = 0.005  # soft target-network update rate
+    gamma: float = 0.99  # discount
+    learning_starts: int = 10_000  # env steps of warm-up actions before the first update
     ent_coef: str = "auto"  # SB3: "auto" (learned, starts at 1.0), "auto_X" (learned, starts at X) or "X" (fixed)
-    use_sde: bool = True
-    sde_sample_freq: int = 64
-    use_sde_at_warmup: bool = True
-    train_freq: int = 1
-    gradient_steps: int = 1
+    use_sde: bool = True  # generalised state-dependent exploration (gSDE) instead of Gaussian noise
+    sde_sample_freq: int = 64  # env steps between gSDE noise-matrix resamples
+    use_sde_at_warmup: bool = True  # warm-up actions from gSDE instead of uniform random
+    train_freq: int = 1  # vector-env steps between updates
+    gradient_steps: int = 1  # gradient steps per update
     buffer_size: int = 1_000_000  # upper bound; the real capacity is sized from free memory
     memory_fraction: float = 0.5  # of the available RAM the replay buffer may take
-    image_dim: int = 256
-    vector_dim: int = 64
-    net_arch: tuple[int, ...] = (256, 256)
+    image_dim: int = 256  # NavCNN image features
+    vector_dim: int = 64  # NavCNN goal-vector features
+    net_arch: tuple[int, ...] = (256, 256)  # hidden sizes of the actor and critic MLPs
     warmup: str = "random"  # actions during learning_starts: "random" (SB3; gSDE samples with use_sde_at_warmup)
     # or "expert": scripted A* demonstrations fill the replay buffer first (small-budget presets)
     bc_weight: float = 0.0  # with warmup="expert": behaviour-cloning actor steps on those demonstrations
@@ -72,20 +72,20 @@ class DistillConfig:
 class TrainConfig:
     """One training run: which scenes, how many envs and actors, the budget, where to write."""
 
-    run_dir: str
-    total_steps: int
-    env_id: str = "vid2sim/PointNav-v0"
+    run_dir: str  # run folder (config, scenes, checkpoints, TensorBoard)
+    total_steps: int  # env-step budget of the run
+    env_id: str = "vid2sim/PointNav-v0"  # Gymnasium id of the training envs
     env_module: Optional[str] = "vid2sim.envs"  # imported so the env id is registered
-    env_kwargs: dict[str, Any] = field(default_factory=dict)
-    registry: Optional[str] = None
-    split_seed: int = 0
+    env_kwargs: dict[str, Any] = field(default_factory=dict)  # extra env arguments (variant, training, ...)
+    registry: Optional[str] = None  # registry root the scenes come from
+    split_seed: int = 0  # seed of the registry's train/test split
     train_scenes: Optional[int] = None  # size of the nested train subset; None = the whole train pool
     scene_ids: list[str] = field(default_factory=list)  # filled from the split when empty
-    n_envs: int = 4
+    n_envs: int = 4  # parallel environments
     n_actors: int = 2  # 0 = DummyVecEnv in-process (no Ray)
-    seed: int = 0
-    checkpoint_every: int = 10_000  # env steps
-    save_replay_buffer: bool = False
+    seed: int = 0  # seed of the envs (env i: seed + i), the networks and the learner
+    checkpoint_every: int = 10_000  # env steps between SAC checkpoints
+    save_replay_buffer: bool = False  # SAC: also save the replay buffer with each checkpoint (resume exactly)
     stuck_steps: Optional[int] = None  # training only: end blocked episodes as failures (training/wrappers.py)
     action_map: str = "clamp"  # policy -> env actions (training/actions.py): "clamp" (envs' contract) or "full"
     sac: SACConfig = field(default_factory=SACConfig)

@@ -43,17 +43,17 @@ METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
 
 @dataclass
 class EvalConfig:
-    registry: str
-    policy: str  # run folder, SAC .zip, "random" or "expert"
+    registry: str  # registry root
+    policy: str  # run folder (SAC or distilled student), SAC .zip, student .pt, "random" or "expert"
     scene_ids: list[str] = field(default_factory=list)  # default: the split's held-out test scenes
-    split_seed: int = 0
-    trials: int = 25
+    split_seed: int = 0  # split whose held-out test scenes are used
+    trials: int = 25  # episodes per scene (the paper: 25)
     obstacles: str = "static"  # none | static | dynamic (SocialNav pedestrians)
     variant: str = "rgb"  # rgb | depth | mesh-rgb
-    pedestrians: tuple[int, int] = (1, 4)
+    pedestrians: tuple[int, int] = (1, 4)  # SocialNav walkers per episode (inclusive range)
     max_steps: Optional[int] = None  # None: the env's 3000
-    seed: int = 1000
-    checkout_root: Optional[str] = None
+    seed: int = 1000  # trial k of every scene uses seed + k
+    checkout_root: Optional[str] = None  # where scenes are checked out (None: $VID2SIM_CHECKOUTS)
     env_id: Optional[str] = None  # default: vid2sim/PointNav-v0 (SocialNav-v0 for dynamic obstacles)
     record: int = 0  # MP4s of the first `record` trials of every scene (camera view + top-down map)
     record_dir: Optional[str] = None  # where the MP4s go (required when record > 0)

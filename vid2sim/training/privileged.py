@@ -19,11 +19,13 @@ from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
-import pybullet as pb
 from gymnasium import spaces
 
+from vid2sim.bullet import import_pybullet
 from vid2sim.envs.nav_env import NavEnv
 from vid2sim.formats.walkable import WalkableGrid
+
+pb = import_pybullet()
 
 PRIVILEGED_ID = "vid2sim/PointNavPrivileged-v0"
 
