@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 from dataclasses import replace
 
 import numpy as np
@@ -97,3 +98,25 @@ def test_study_end_to_end_on_ray(street_registry, tmp_path):
     assert sorted(r.count for r in rows) == [1, 4]
     assert (tmp_path / "study.png").exists()
     assert json.loads((tmp_path / "study.json").read_text())["counts"] == [1, 4]
+
+
+@pytest.mark.slow
+def test_distill_study_end_to_end_on_ray(street_registry, tmp_path):
+    from vid2sim.training.config import DistillConfig
+    from vid2sim.training.student import StudentConfig
+
+    path = os.pathsep.join([str(PROJECT_ROOT), os.environ.get("PYTHONPATH", "")])
+    init_ray(num_cpus=2, runtime_env={"env_vars": {"PYTHONPATH": path}})
+    try:
+        distill = DistillConfig(steps_per_round=40, updates_per_round=4, batch_size=8, train_max_steps=30,
+                                student=StudentConfig(channels=(4, 4, 8, 8), frame_dim=8, vector_dim=8, hidden=16))
+        config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1, 4], seeds=1,
+                             total_steps=40, n_envs=2, trials=1, method="distill", stuck_steps=10,
+                             env_kwargs={"training": True, "fidelity": "exact"}, distill=distill, eval_max_steps=20)
+        rows = run_study(config)
+    finally:
+        ray.shutdown()
+    assert sorted(r.count for r in rows) == [1, 4]
+    assert all((Path(r.run_dir) / "student.pt").is_file() and len(r.success) == 1 for r in rows)
+    study = json.loads((tmp_path / "study.json").read_text())
+    assert study["config"]["method"] == "distill" and "sr_ci_low" in study["aggregate"]["1"]
