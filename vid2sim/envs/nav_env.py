@@ -7,7 +7,11 @@ Env contract
 - `step(action) -> (obs, reward, terminated, truncated, info)`. action: float [2] in [-1, 1]:
   a[0] speed (clamped to [0, 1] x max_speed: no reverse, as the official agent), a[1] steering
   (x 30 deg). Out-of-range values are clipped; NaN or inf raise `InvalidActionError` before
-  anything changes (the episode goes on with the next valid action).
+  anything changes (the episode goes on with the next valid action). Once a step has returned
+  terminated or truncated, further steps raise `EpisodeEndedError` until `reset()` (the
+  Gymnasium contract); `step()` before a successful `reset()` raises `ResetNeededError`. A
+  `reset()` that raises (e.g. `SceneError` for a scene with no free start) leaves no episode:
+  the env stays usable and the next `reset()` starts afresh.
 - obs: Dict `image` uint8 [6, C, 72, 128] (oldest first; C = 3 rgb / mesh-rgb, 1 depth where
   0..255 = 0..20 m), `vector` float32 [6, 2] (distance to goal in m, heading to goal / pi).
 - terminated: success (<= 0.5 m from the goal), left the walkable map, > 3 collision events.
@@ -59,6 +63,14 @@ class InvalidActionError(ValueError):
     """An action with NaN or infinite entries, or of the wrong shape."""
 
 
+class ResetNeededError(RuntimeError):
+    """`step()` without a running episode: no `reset()` yet, or the last one raised."""
+
+
+class EpisodeEndedError(ResetNeededError):
+    """`step()` after the episode ended (terminated or truncated): call `reset()` first."""
+
+
 class NavEnv(gym.Env):
     metadata = {"render_modes": ["rgb_array"], "render_fps": 5}
 
@@ -85,7 +97,8 @@ class NavEnv(gym.Env):
                                  dtype=np.float32)})
         self.action_space = spaces.Box(-1.0, 1.0, (2,), np.float32)
         self.timings: dict[str, float] = defaultdict(float)
-        self.episode: Optional[Episode] = None
+        self.episode: Optional[Episode] = None  # None: no running episode (step refuses)
+        self.ended = False  # the last step returned terminated or truncated
         self.actors: Optional[EpisodeActors] = None
         self.augmenter = Augmenter(self.config.augmentation)
         self.K = intrinsics(self.config.camera)
@@ -103,15 +116,26 @@ class NavEnv(gym.Env):
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)
-        rng = self.np_random
-        options = options or {}
-        scene_id = options.get("scene_id") or self.scene_ids[int(rng.integers(len(self.scene_ids)))]
+        self.episode, self.ended = None, False  # no episode until this reset has succeeded
         if self.actors is not None:
             self.actors.remove()
+            self.actors = None
+        try:
+            return self._start_episode(options or {})
+        except BaseException:
+            self.episode = None  # a failed reset leaves no half-made episode behind
+            if self.actors is not None:
+                self.actors.remove()
+                self.actors = None
+            raise
+
+    def _start_episode(self, options: dict):
+        rng = self.np_random
+        scene_id = options.get("scene_id") or self.scene_ids[int(rng.integers(len(self.scene_ids)))]
         self.world = self._world(scene_id)
         c = self.config
-        self.episode = self._sample_free_start(rng, scene_id)
-        ep = self.episode
+        ep = self._sample_free_start(rng, scene_id)
+        self.episode = ep
         lo, hi = c.episode.pedestrians
         peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
         self.actors = EpisodeActors(self.world.physics.client)
@@ -148,8 +172,11 @@ class NavEnv(gym.Env):
                          "walkable map all touch the collision mesh")
 
     def step(self, action):
+        if self.ended:
+            raise EpisodeEndedError("the episode has ended (terminated or truncated): call reset() "
+                                    "before step()")
         if self.episode is None:
-            raise RuntimeError("call reset() before step()")
+            raise ResetNeededError("no running episode: call reset() before step()")
         speed_n, steer_n = self._check_action(action)
         c = self.config
         prev_dist = self.distance()
@@ -183,6 +210,7 @@ class NavEnv(gym.Env):
         info["collided"] = collided
         if terms.end:
             info["nav_episode"] = self.record(terms.end)
+        self.ended = bool(terms.terminated or terms.truncated)
         return self._obs(), float(terms.total), terms.terminated, terms.truncated, info
 
     def render(self) -> Optional[np.ndarray]:
