@@ -28,6 +28,7 @@ from ray.exceptions import RayActorError
 from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
+from vid2sim.factory.runtime.orchestrator import init_ray  # noqa: F401  (the one Ray start, re-exported)
 from vid2sim.training.actions import ActionMapping
 from vid2sim.training.wrappers import ExpertActions, StuckTermination, TeacherLabels
 
@@ -153,26 +154,6 @@ class EnvWorker:
     def close(self) -> None:
         for env in self.envs:
             env.close()
-
-
-def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, attempts: int = 3,
-             runtime_env: Optional[dict] = None) -> None:
-    """Connect to a cluster or start a local runtime; retries a local start that times out.
-
-    Ray waits a fixed 30 s for its raylet; on a heavily loaded machine the first start can miss
-    that window (the error says "node timed out during startup"), and a retry usually succeeds."""
-    for attempt in range(attempts):
-        try:
-            if address:
-                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False, runtime_env=runtime_env)
-            else:
-                ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True, log_to_driver=False,
-                         runtime_env=runtime_env)
-            return
-        except Exception as e:  # Ray raises a bare Exception for the start-up timeout
-            if "timed out during startup" not in str(e) or attempt == attempts - 1:
-                raise
-            ray.shutdown()
 
 
 @dataclass

@@ -74,17 +74,36 @@ def _run_stage(fn: Callable[[dict], dict], stage_name: str, context: dict) -> di
                 "seconds": time.perf_counter() - t0}
 
 
-def ensure_ray(address: Optional[str] = None, num_cpus: Optional[int] = None) -> None:
-    """Connect to `address`, or start an embedded local Ray runtime once (num_cpus >= 1)."""
+def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, attempts: int = 3,
+             runtime_env: Optional[dict] = None) -> None:
+    """The one way the project starts Ray (factory pipeline, training, benchmarks): connect to
+    the cluster at `address`, or start an embedded local runtime with `num_cpus` CPUs (>= 1;
+    None: all). Does nothing when Ray is already initialised in this process (`runtime_env` is
+    then not applied). `runtime_env` (e.g. env_vars) goes to the workers.
+
+    Retries a local start that times out, up to `attempts` tries in all: Ray waits a fixed 30 s
+    for its raylet, and on a heavily loaded machine the first start can miss that window (the
+    error says "node timed out during startup"); a retry usually succeeds. Other errors raise."""
     if num_cpus is not None and num_cpus < 1:
         raise ValueError(f"num_cpus={num_cpus}: the local Ray runtime needs at least 1 CPU")
     if ray.is_initialized():
         return
-    if address:
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-    else:
-        ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True,
-                 log_to_driver=False, configure_logging=False)
+    for attempt in range(max(1, attempts)):
+        try:
+            if address:
+                ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
+                         runtime_env=runtime_env)
+            else:
+                ray.init(num_cpus=num_cpus, include_dashboard=False, ignore_reinit_error=True,
+                         log_to_driver=False, configure_logging=False, runtime_env=runtime_env)
+            return
+        except Exception as e:  # Ray raises a bare Exception for the start-up timeout
+            if "timed out during startup" not in str(e) or attempt >= attempts - 1:
+                raise
+            ray.shutdown()
+
+
+ensure_ray = init_ray  # the earlier name of `init_ray`, kept for existing callers
 
 
 def run_clips(
@@ -101,8 +120,7 @@ def run_clips(
     `on_clip_done` when a clip finished all stages (e.g. to commit it), and may
     raise StageError to mark the clip failed at that point.
     """
-    if not ray.is_initialized():
-        ensure_ray()
+    init_ray()  # a local runtime unless Ray is already initialised
     remote = ray.remote(_run_stage)
     states = {cid: ClipState(cid, dict(ctx)) for cid, ctx in clips}
     inflight: dict[ray.ObjectRef, str] = {}

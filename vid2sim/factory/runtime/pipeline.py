@@ -43,7 +43,7 @@ from vid2sim.factory.recon import trainer
 from vid2sim.factory.recon.config import ReconConfig
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.runtime.bundle_assembly import assemble_bundle
-from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, ensure_ray, run_clips
+from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, init_ray, run_clips
 from vid2sim.factory.runtime.stage_cache import StageError, input_key
 from vid2sim.factory.sfm import metric, sfm
 from vid2sim.factory.sfm.metric import MetricConfig
@@ -345,7 +345,7 @@ def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,
     jobs, failed = plan_jobs(rows_from_inputs(inputs, licence, capture_height), conf)
     if on_plan:
         on_plan([j.spec.clip_id for j in jobs] + [f.clip_id for f in failed])
-    ensure_ray(ray_address, num_cpus)
+    init_ray(ray_address, num_cpus)
     total_cpus = int(ray.cluster_resources().get("CPU", 1))
     cpus = float(max(1, total_cpus // max(1, len(jobs))))
     gpus = 1.0 if ray.cluster_resources().get("GPU", 0) >= 1 else 0.0
