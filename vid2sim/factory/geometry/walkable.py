@@ -49,7 +49,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 from scipy import ndimage
@@ -603,8 +603,12 @@ def load_points(path: Path, reason: str) -> np.ndarray:
 
 def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
          camera_path: np.ndarray, out_dir: Path, input_key: str = "",
-         overwrite: bool = False, carved_points: Optional[np.ndarray] = None) -> Path:
-    """Stage entry: write walkable.npz into out_dir (skipped when done for this key)."""
+         overwrite: bool = False, carved_points: Optional[np.ndarray] = None,
+         before_marker: Optional[Callable[[Path], object]] = None) -> Path:
+    """Stage entry: write walkable.npz into out_dir (skipped when done for this key).
+    before_marker(out_dir) runs on the written outputs just before the marker, the last file
+    written (the pipeline's corridor report); what it writes is part of this stage's output, so
+    whatever decides it must be in `input_key`."""
     import trimesh
 
     out_dir = Path(out_dir)
@@ -629,5 +633,7 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
                        wm, layer.evidence, camera_path, conf.robot_radius_m).items()})
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
+    if before_marker is not None:
+        before_marker(out_dir)
     mark_done(out_dir, STAGE, key, summary, t.seconds)
     return out_dir

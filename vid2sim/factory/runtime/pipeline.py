@@ -56,6 +56,7 @@ from vid2sim.splats.ply import read_ply
 from vid2sim.versioning import config_hash, from_jsonable, to_jsonable
 
 MANIFEST_SUFFIXES = {".yaml", ".yml", ".csv", ".parquet"}
+CORRIDOR_REPORT = "corridor.json"  # in the walkable stage folder, written before its marker
 
 
 def _sfm_config(preset: str) -> SfMConfig:
@@ -237,7 +238,9 @@ def stage_meshing(ctx: dict) -> dict:
 
 def stage_walkable(ctx: dict) -> dict:
     """Ground points + carved points + fused collision mesh + camera path -> the physical layer
-    (walkable/): walkable grid and the collision mesh that agrees with it."""
+    (walkable/): walkable grid and the collision mesh that agrees with it, and the corridor
+    report on them (corridor.json, written before the stage marker: the marker is the last file
+    of the folder); then the corridor gate, which writes nothing."""
     _threads(ctx)
     conf: PipelineConfig = ctx["conf"]
     mesh_dir = Path(ctx["meshing_dir"])
@@ -245,29 +248,52 @@ def stage_walkable(ctx: dict) -> dict:
     path = np.array([f.cam_to_world[:3, 3] for f in clip.frames])  # [T, 3]
     carved = mesh_dir / meshing.OUTPUTS.carved_points
     ground = walkable.load_points(mesh_dir / meshing.OUTPUTS.ground_points, "bad_ground_points")
+    # the corridor config decides corridor.json, a file of this stage: it is part of the key
+    key = config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"])), conf.corridor)
     walk_dir = walkable.main(conf.walkable, ground, mesh_dir / meshing.OUTPUTS.collision, path,
-                             _dir(ctx, "walkable"),
-                             input_key=config_hash(input_key(mesh_dir), input_key(Path(ctx["posed_dir"]))),
+                             _dir(ctx, "walkable"), input_key=key,
                              carved_points=walkable.load_points(carved, "bad_carved_points")
-                             if carved.is_file() else None)
-    check_corridor(conf.corridor, walk_dir, path)
+                             if carved.is_file() else None,
+                             before_marker=lambda d: corridor_report(conf.corridor, d, path))
+    corridor_gate(_read_corridor_report(walk_dir))
     return {"walkable_dir": str(walk_dir)}
 
 
-def check_corridor(conf: CorridorConfig, walk_dir: Path, path: np.ndarray) -> dict:
+def corridor_report(conf: CorridorConfig, walk_dir: Path, path: np.ndarray) -> dict:
     """Corridor check (vid2sim.factory.evaluation.corridor) of the physical layer in walk_dir
-    (walkable.npz + the collision.ply the bundle ships) written to walk_dir/corridor.json, then
-    the quality gate: raises StageError('walkable', reason) when the walked corridor is blocked."""
+    (walkable.npz + the collision.ply the bundle ships) and its quality-gate verdict, written to
+    walk_dir/corridor.json; returns the record."""
     mesh = trimesh.load(walk_dir / walkable.OUTPUTS.collision, force="mesh", process=False)
     report = corridor_check(load_walkable(walk_dir / walkable.OUTPUTS.grid), mesh, path, conf)
     reasons = gate_reasons(report, conf)
     out = {**report.to_dict(), "passed": not reasons, "reasons": ",".join(reasons)}
-    (walk_dir / "corridor.json").write_text(json.dumps(out, indent=2))
+    (walk_dir / CORRIDOR_REPORT).write_text(json.dumps(out, indent=2))
+    return out
+
+
+def _read_corridor_report(walk_dir: Path) -> dict:
+    try:
+        return json.loads((walk_dir / CORRIDOR_REPORT).read_text())
+    except (OSError, ValueError) as e:
+        raise StageError("walkable", "bad_corridor_report", f"{walk_dir / CORRIDOR_REPORT}: {e}") from None
+
+
+def corridor_gate(report: dict) -> None:
+    """The quality gate on a corridor report (`corridor_report`): raises
+    StageError('walkable', reason) when the walked corridor is blocked; writes nothing."""
+    reasons = [r for r in str(report.get("reasons", "")).split(",") if r]
     if reasons:
         raise StageError("walkable", reasons[0], f"walked corridor check failed ({', '.join(reasons)}): "
-                         f"{report.walkable_fraction:.1%} of the path walkable, "
-                         f"{report.path_components} components, "
-                         f"{report.corridor_area_m2:.3f} m^2 of collision surface in the corridor")
+                         f"{report['walkable_fraction']:.1%} of the path walkable, "
+                         f"{report['path_components']} components, "
+                         f"{report['corridor_area_m2']:.3f} m^2 of collision surface in the corridor")
+
+
+def check_corridor(conf: CorridorConfig, walk_dir: Path, path: np.ndarray) -> dict:
+    """`corridor_report` then `corridor_gate`: the report written to walk_dir/corridor.json,
+    StageError('walkable', reason) when the walked corridor is blocked."""
+    out = corridor_report(conf, walk_dir, path)
+    corridor_gate(out)
     return out
 
 
