@@ -1,5 +1,9 @@
 """Configuration of the navigation envs: robot, camera, reward, episodes, task.
 
+The robot's size, bicycle model and camera mount / intrinsics are the project's one robot
+spec (`vid2sim.formats.robot.ROBOT`, shared with the factory, recorded in each bundle's
+scene.json): `RobotConfig` and `CameraConfig` take their defaults from it.
+
 Constants and where they come from:
 - Bicycle model, 0.8 m wheelbase, 30 deg maximum steering: the paper's appendix (simulation
   set-up). The official Unity `CocoAgent` multiplies steer by 60 deg and halves the yaw rate;
@@ -33,6 +37,7 @@ from typing import Literal, Optional, Sequence, Union
 
 from vid2sim.envs.augment import AugmentConfig
 from vid2sim.envs.obstacles import ObstacleConfig
+from vid2sim.formats.robot import ROBOT
 
 Variant = Literal["rgb", "depth", "mesh-rgb"]
 VARIANTS: tuple[str, ...] = ("rgb", "depth", "mesh-rgb")
@@ -41,13 +46,13 @@ FIDELITIES: tuple[str, ...] = ("exact", "fast")
 
 @dataclass(frozen=True)
 class RobotConfig:
-    wheelbase: float = 0.8  # m, bicycle-model wheelbase (paper)
-    max_steer_deg: float = 30.0  # deg, maximum steering angle (paper; official code: 60)
-    max_speed: float = 1.0  # m/s, top speed (official CocoAgent: move x 1 m/s)
-    length: float = 0.9  # m, footprint box length
-    width: float = 0.6  # m, footprint box width
-    height: float = 0.6  # m, footprint box height
-    ground_clearance: float = 0.15  # m, box bottom above z = 0. Factory scenes agree with it
+    wheelbase: float = ROBOT.wheelbase_m  # m, bicycle-model wheelbase (paper)
+    max_steer_deg: float = ROBOT.max_steer_deg  # deg, maximum steering angle (paper; official code: 60)
+    max_speed: float = ROBOT.max_speed_mps  # m/s, top speed (official CocoAgent: move x 1 m/s)
+    length: float = ROBOT.length_m  # m, footprint box length
+    width: float = ROBOT.width_m  # m, footprint box width
+    height: float = ROBOT.height_m  # m, footprint box height
+    ground_clearance: float = ROBOT.ground_clearance_m  # m, box bottom above z = 0. Factory scenes agree with it
     # by construction: the physical layer (factory/geometry/walkable.py) drops collision geometry
     # lower than its step (0.1 m, raised to the ground noise) and blocks the map under every
     # other face below 1.8 m, so no walkable cell has mesh in this box's band; kerb drops are
@@ -60,11 +65,11 @@ class RobotConfig:
 
 @dataclass(frozen=True)
 class CameraConfig:
-    width: int = 128  # px, observation image width
-    height: int = 72  # px, observation image height
-    vfov_deg: float = 60.0  # Unity default camera at 1280x720
-    mount_height: float = 0.65  # m above the ground
-    mount_forward: float = 0.45  # m ahead of the robot centre (the box's front face)
+    width: int = ROBOT.camera_width_px  # px, observation image width
+    height: int = ROBOT.camera_height_px  # px, observation image height
+    vfov_deg: float = ROBOT.camera_vfov_deg  # deg, vertical field of view (Unity default camera at 1280x720)
+    mount_height: float = ROBOT.camera_height_m  # m above the ground
+    mount_forward: float = ROBOT.camera_forward_m  # m ahead of the robot centre (the box's front face)
     near: float = 0.05  # m, near clipping distance
     far: float = 100.0  # m, far clipping distance
     cov_cull_alpha: float = 0.01  # screen-space covariance culling (paper appendix)

@@ -6,7 +6,9 @@ Layout (schema_version 1):
   world_frame  {units "m", up "+z", ground_z 0, scale_source[, notes, extras]}
   metrics      {str: value}
   pipeline     {config, config_hash, code_version[, stages]}
-  tags         [tag, ...]; optional: schema_version, description, extras
+  tags         [tag, ...]; optional: schema_version, description, robot, extras
+  robot        the robot the scene was made for (`formats/robot.py` RobotSpec.to_dict: footprint,
+               clearance, bicycle model, walker body radius, camera mount and intrinsics)
 Reads/writes nothing but the JSON file itself.
 """
 
@@ -19,6 +21,7 @@ from pathlib import Path
 from typing import Any, Optional
 
 from vid2sim.formats.errors import BundleError, PathLike
+from vid2sim.formats.robot import RobotSpec
 from vid2sim.versioning import code_version as _code_version
 from vid2sim.versioning import config_hash as _config_hash
 from vid2sim.versioning import to_jsonable
@@ -31,7 +34,7 @@ SHA256_RE = re.compile(r"[0-9a-f]{64}")
 
 # scene.json layout: required keys (and optional ones) per object.
 TOP_REQUIRED = ("scene_id", "source", "world_frame", "metrics", "pipeline", "tags")
-TOP_OPTIONAL = ("schema_version", "description", "extras")
+TOP_OPTIONAL = ("schema_version", "description", "robot", "extras")
 SOURCE_REQUIRED = ("uri", "sha256", "clip_start_s", "clip_end_s", "group")
 SOURCE_OPTIONAL = ("title", "license")
 FRAME_REQUIRED = ("units", "up", "ground_z", "scale_source")
@@ -106,6 +109,11 @@ def check_scene_json(scene: Any, where: PathLike = SCENE_JSON) -> dict:
     tags = scene["tags"]
     if not isinstance(tags, list) or not all(isinstance(t, str) and TAG_RE.fullmatch(t) for t in tags):
         raise BundleError(where, f"tags must be a list of tags matching {TAG_RE.pattern}, got {tags!r}")
+    if "robot" in scene:
+        try:
+            RobotSpec.from_dict(scene["robot"])
+        except ValueError as e:
+            raise BundleError(where, f"invalid robot: {e}") from None
     if "schema_version" in scene and scene["schema_version"] != SCHEMA_VERSION:
         raise BundleError(where, f"unsupported schema_version {scene['schema_version']!r} (expected {SCHEMA_VERSION})")
     return scene
@@ -154,9 +162,11 @@ def make_scene_json(
     code_version: Optional[str] = None,
     tags: tuple[str, ...] | list[str] = (),
     description: Optional[str] = None,
+    robot: Optional[RobotSpec] = None,
 ) -> dict:
     """Fill a valid scene.json dict. `group` defaults to the source video hash (clips of one
-    video share a group, so splits never put them on both sides)."""
+    video share a group, so splits never put them on both sides). `robot`: the robot the scene
+    was made for, recorded under `robot` (None: not recorded)."""
     cfg = to_jsonable(config) if config is not None else {}
     if not isinstance(cfg, dict):
         cfg = {"value": cfg}
@@ -173,6 +183,8 @@ def make_scene_json(
     }
     if description:
         scene["description"] = description
+    if robot is not None:
+        scene["robot"] = robot.to_dict()
     return check_scene_json(scene, "scene.json (make_scene_json)")
 
 

@@ -64,6 +64,7 @@ from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M, walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
 
@@ -158,12 +159,13 @@ class WalkableConfig:
     # sub-step faces this close to geometry above the step are an obstacle's base (a wall's or
     # a planter's lowest 0.1-0.3 m): kept, they lie in blocked cells anyway
     base_radius_m: float = 0.0
-    # the envs' robot box (vid2sim.envs.config.RobotConfig: 0.15 m ground clearance, 0.6 m
-    # tall) above z = 0, their ground plane: after trimming, a surface sample blocks the map
-    # when it lies in this band, or between body_bottom_m and obstacle_max_z_m above the local
-    # ground; what lies below body_bottom_m on both counts cannot touch the box
-    body_bottom_m: float = 0.15
-    body_top_m: float = 0.75  # m above z = 0, top of the envs' robot box (see body_bottom_m)
+    # the robot's box (vid2sim.formats.robot.ROBOT, which the envs' RobotConfig also reads:
+    # 0.15 m ground clearance, 0.6 m tall) above z = 0, their ground plane: after trimming, a
+    # surface sample blocks the map when it lies in this band, or between body_bottom_m and
+    # obstacle_max_z_m above the local ground; what lies below body_bottom_m on both counts
+    # cannot touch the box
+    body_bottom_m: float = ROBOT.body_bottom_m
+    body_top_m: float = ROBOT.body_top_m  # m above z = 0, top of the robot's box (0.75 m; see body_bottom_m)
     # inflate obstacles by exact distances from the cell centres to the surface samples (True)
     # rather than cell centre to occupied cell centre (up to 0.07 m off either way at 0.1 m)
     exact_inflation: bool = True

@@ -5,10 +5,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from vid2sim.formats.robot import ROBOT
+
 # The walker's body: a vertical disc of this radius swept along the walked path is proven
 # empty (the person who filmed walked there). The body carving, the corridor check and the
-# walkable map's clearance all use it.
-BODY_RADIUS_M = 0.25
+# walkable map's clearance all use it. From the robot spec (`formats/robot.py`), 0.25 m.
+BODY_RADIUS_M = ROBOT.walker_radius_m
 
 
 class CorridorError(ValueError):

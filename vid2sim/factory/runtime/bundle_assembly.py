@@ -3,8 +3,9 @@
 Reads: metric/ (PosedClip: cameras, frame facts), recon/ (splats.ply, metrics.json),
 meshing/ (collision.ply, visual_mesh.ply), walkable/ (walkable.npz, corridor.json), sfm/
 (quality.json).
-Writes: a bundle folder (scene.json, splats.ply, collision.ply, walkable.npz,
-cameras.parquet, preview.png, extras: visual_mesh.ply, colmap/) via `write_bundle`.
+Writes: a bundle folder (scene.json, with the robot the scene was made for under `robot`;
+splats.ply, collision.ply, walkable.npz, cameras.parquet, preview.png, extras: visual_mesh.ply,
+colmap/) via `write_bundle`.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from vid2sim.factory.runtime.stage_cache import Timer, input_key, is_done, mark_
 from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.formats.bundle import write_bundle
 from vid2sim.formats.errors import BundleError
+from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.scene import make_scene_json
 from vid2sim.formats.walkable import load_walkable
 from vid2sim.splats.camera import Camera
@@ -34,7 +36,7 @@ from vid2sim.splats.render import render
 from vid2sim.splats.types import RasterSettings
 
 STAGE = "bundle"
-STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 3  # bump when this stage's outputs change for the same inputs
 
 
 def tag(key: str, value: object) -> str:
@@ -112,7 +114,7 @@ def _assemble(ctx: dict, out_dir: Path) -> Path:
             job.scene_id, source_uri=spec.source.uri, source_sha256=spec.source.sha256,
             clip_start_s=start, clip_end_s=end, group=spec.group,
             scale_source=str(clip.frame_info.get("scale_source", "capture_height")),
-            metrics=_scalars(metrics), config=conf,
+            metrics=_scalars(metrics), config=conf, robot=ROBOT,
             tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
         with tempfile.TemporaryDirectory() as tmp:
             preview = render_preview(dirs["recon"] / "splats.ply", clip, walk.grid, Path(tmp) / "p.png")

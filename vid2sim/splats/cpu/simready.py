@@ -2,7 +2,9 @@
 
 Choice: made when a scene is loaded for simulation, not stored in the bundle; the
 bundle keeps the full splats for viewing. The envs pass robot cameras sampled over the
-walkable map (`robot_cameras`), and `sim_ready` keeps the splats that carry the image there:
+walkable map (their own cameras; `robot_cameras` makes the same ones from robot poses: the
+robot spec's mount and intrinsics, `vid2sim.formats.robot.ROBOT`), and `sim_ready` keeps the
+splats that carry the image there:
 
 1. Global significance (LightGaussian-style, but measured rather than estimated from
    opacity x volume): each splat's summed blend weight alpha * T over every pixel of every
@@ -27,6 +29,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from vid2sim.formats.robot import ROBOT
+
 from ..camera import Camera, look_at
 from ..model import GaussianModel
 from ..sh import C0
@@ -39,11 +43,13 @@ from .raster import kernel_tile
 from .simfit import FitConfig, fit_to_views
 from .static import StaticScene
 
-ENV_WIDTH, ENV_HEIGHT = 128, 72
-# The robot camera's intrinsics, as the envs' CameraConfig (vid2sim/envs/config.py): the paper
-# gives only the 1280x720 sensor; Unity's default 60 deg vertical fov, centred principal point.
-ENV_VFOV_DEG = 60.0
-ROBOT_CAMERA_HEIGHT_M = 0.6
+# The robot camera (vid2sim.formats.robot.ROBOT, which the envs' CameraConfig also reads): 128x72,
+# Unity's default 60 deg vertical fov (the paper gives only the 1280x720 sensor), centred
+# principal point; mounted 0.65 m above the ground, 0.45 m ahead of the robot centre, level.
+ENV_WIDTH, ENV_HEIGHT = ROBOT.camera_width_px, ROBOT.camera_height_px
+ENV_VFOV_DEG = ROBOT.camera_vfov_deg
+ROBOT_CAMERA_HEIGHT_M = ROBOT.camera_height_m
+ROBOT_CAMERA_FORWARD_M = ROBOT.camera_forward_m
 
 
 @dataclass(frozen=True)
@@ -62,13 +68,16 @@ class SimReadyConfig:
 
 def robot_cameras(xy: np.ndarray, yaw: np.ndarray, height_m: float = ROBOT_CAMERA_HEIGHT_M,
                   width: int = ENV_WIDTH, height: int = ENV_HEIGHT,
-                  vfov_deg: float = ENV_VFOV_DEG, ground_z: float = 0.0) -> list[Camera]:
-    """Level forward cameras at xy [P, 2] (z-up metric frame, ground at ground_z), heading
-    yaw [P] radians (0 = +x), height_m above the ground, square pixels, vertical fov vfov_deg."""
+                  vfov_deg: float = ENV_VFOV_DEG, ground_z: float = 0.0,
+                  forward_m: float = ROBOT_CAMERA_FORWARD_M) -> list[Camera]:
+    """The level forward cameras of robots at xy [P, 2] (z-up metric frame, ground at
+    ground_z) heading yaw [P] radians (0 = +x): each camera height_m above the ground and
+    forward_m ahead of the robot centre along the heading, square pixels, vertical fov
+    vfov_deg. The defaults are the envs' camera (the robot spec)."""
     f = 0.5 * height / np.tan(np.deg2rad(vfov_deg) / 2)
     out = []
     for (x, y), a in zip(np.asarray(xy, np.float64), np.asarray(yaw, np.float64)):
-        eye = np.array([x, y, ground_z + height_m])
+        eye = np.array([x + forward_m * np.cos(a), y + forward_m * np.sin(a), ground_z + height_m])
         target = eye + np.array([np.cos(a), np.sin(a), 0.0])
         out.append(Camera(f, f, width / 2, height / 2, width, height,
                           look_at(eye, target, (0.0, 0.0, 1.0))))
