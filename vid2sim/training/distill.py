@@ -40,7 +40,7 @@ from torch.utils.tensorboard import SummaryWriter
 
 from vid2sim.training.config import TrainConfig
 from vid2sim.training.rollouts import EnvSpec
-from vid2sim.training.sac import make_vec_env, resolve_scenes, write_run_folder
+from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
 from vid2sim.training.student import StudentPolicy, random_shift
 
 STUDENT_NAME = "student.pt"
@@ -204,14 +204,6 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Batch, u
 
 
 # ------------------------------------------------------------------ the loop
-@dataclass
-class DistillResult:
-    run_dir: Path
-    num_timesteps: int
-    history: list[dict[str, float]]
-    wall_s: float
-
-
 def make_student(config: TrainConfig, env: VecEnv) -> StudentPolicy:
     space = env.observation_space
     if not hasattr(space, "spaces") or "image" not in space.spaces:
@@ -237,7 +229,7 @@ def load_checkpoint(run: Path) -> dict:
     return torch.load(path, map_location="cpu", weights_only=False)
 
 
-def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] = None) -> DistillResult:
+def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] = None) -> TrainResult:
     """Train (or resume) one distillation run; see the module docstring for the steps."""
     d = config.distill
     if d.threads:
@@ -286,7 +278,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             if log:
                 log(row)
         student.save(run / STUDENT_NAME)
-        return DistillResult(run, done, history, time.perf_counter() - t_start)
+        return TrainResult(run, done, history, time.perf_counter() - t_start)
     finally:
         writer.close()
         env.close()
