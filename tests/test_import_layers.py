@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "vid2sim"
-LAYERS = {"formats": 0, "versioning": 0, "": 0, "splats": 1, "registry": 1, "factory": 2, "envs": 3,
+LAYERS = {"formats": 0, "versioning": 0, "bullet": 0, "": 0, "splats": 1, "registry": 1, "factory": 2, "envs": 3,
           "training": 4, "cli": 5}
 FACTORY = {"stage_base": 0, "ingest": 1, "sfm": 2, "recon": 3, "geometry": 4, "synthetic": 5,
            "evaluation": 6, "runtime": 7, "": 7}
