@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import time
 from datetime import datetime, timezone
 
@@ -129,8 +130,10 @@ def test_gc_removes_only_unreferenced(tmp_path, reg):
     reg._store_blobs(orphan_info)  # what a committer killed before its commit leaves behind
     (reg.blobs.root / "tmp").mkdir(exist_ok=True)
     (reg.blobs.root / "tmp" / "partial").write_bytes(b"half a blob")
+    stale = time.time() - 2 * 3600  # names no writer: gc waits an hour whatever the grace
+    os.utime(reg.blobs.root / "tmp" / "partial", (stale, stale))
     refs = reg.referenced()
-    assert reg.gc() == []  # within the grace period nothing goes
+    assert reg.gc(grace_s=3 * 3600) == []  # within the grace period nothing goes
     removed = reg.gc(grace_s=0)
     assert "tmp/partial" in removed
     assert removed and all(r.startswith("tmp/") or r not in refs for r in removed)

@@ -9,9 +9,9 @@ from vid2sim.formats.errors import BundleError
 from vid2sim.formats.scene import make_scene_json
 from vid2sim.registry.records import Artifact, SceneRecord
 from vid2sim.registry.split import Split, SplitError
-from vid2sim.registry.errors import HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
+from vid2sim.registry.errors import BadGracePeriod, HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
 from vid2sim.registry.store import AddResult, Registry, RegistryConfig
 
-__all__ = ["AddResult", "Artifact", "BundleError", "BundleInfo", "HistoryLost", "Registry", "RegistryConfig",
-           "RegistryError", "RegistryNotFound", "SceneNotFound",
+__all__ = ["AddResult", "Artifact", "BadGracePeriod", "BundleError", "BundleInfo", "HistoryLost", "Registry",
+           "RegistryConfig", "RegistryError", "RegistryNotFound", "SceneNotFound",
            "SceneRecord", "Split", "SplitError", "make_scene_json", "validate_bundle", "write_bundle"]

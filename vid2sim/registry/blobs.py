@@ -7,6 +7,13 @@ commit, so a blob that no manifest row and no intent accounts for means lost his
 content is stored once. Two backends share one small interface: `LocalBlobStore` (a folder;
 os.replace + fsync) and `ArrowBlobStore` (any pyarrow FileSystem, including fsspec filesystems
 wrapped by `pyarrow.fs.FSSpecHandler`).
+
+Owners: temp files are named `<random>.<pid>.<host>` and intents record `owner` {host, pid}, so
+`gc` can tell a writer that is still running on this machine (its files are never touched) from
+one that died (its leftovers go after the grace period); see `process_state`. `gc` deletes a blob
+in two steps: it moves it to `<root>/blobs/trash/` (`trash`), re-checks that nothing started to
+reference it meanwhile, then `restore`s or `purge`s it; a gc killed in between leaves trash that
+the next gc restores.
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import socket
 import time
 import uuid
 from abc import ABC, abstractmethod
@@ -24,6 +32,61 @@ from typing import BinaryIO, Iterator
 CHUNK = 1 << 20
 TMP_DIR = "tmp"
 INTENT_DIR = "intents"  # one JSON per add in flight: the blobs it stores before its commit
+TRASH_DIR = "trash"  # blobs a running gc took out, until it has re-checked them
+HOST = socket.gethostname()
+_WRITING: set[str] = set()  # temp file names this process is writing right now
+
+
+def temp_name(pid: int | None = None, host: str | None = None) -> str:
+    """A fresh temp/trash file name that names its owner: `<random>.<pid>.<host>`."""
+    return f"{uuid.uuid4().hex}.{os.getpid() if pid is None else pid}.{host or HOST}"
+
+
+def name_owner(name: str) -> tuple[str | None, int | None]:
+    """(host, pid) of a `temp_name`; (None, None) for a name that records no owner."""
+    parts = name.split(".", 2)
+    if len(parts) == 3 and parts[1].isdigit() and parts[2]:
+        return parts[2], int(parts[1])
+    return None, None
+
+
+def owner() -> dict:
+    """What an intent records about the process writing it."""
+    return {"host": HOST, "pid": os.getpid()}
+
+
+def process_state(host: str | None, pid: int | None) -> str:
+    """'self' (this process), 'alive', 'dead', or 'unknown' (another machine / nothing recorded).
+
+    A zombie or a reused pid reads as alive: that only keeps leftovers longer, never less."""
+    if not host or not pid or host != HOST:
+        return "unknown"
+    if pid == os.getpid():
+        return "self"
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return "dead"
+    except PermissionError:  # exists, owned by another user
+        return "alive"
+    except OSError:
+        return "unknown"
+    return "alive"
+
+
+def temp_in_use(name: str) -> bool:
+    """True while the process that names itself in temp file `name` may still be writing it."""
+    state = process_state(*name_owner(name))
+    return state == "alive" or (state == "self" and name in _WRITING)
+
+
+@dataclass(frozen=True)
+class Trashed:
+    """A blob `gc` moved aside: its trash file name and the mtime it had (None: not reliable)."""
+
+    sha256: str
+    name: str
+    mtime: float | None
 
 
 def sha256_file(path: Path) -> tuple[str, int]:
@@ -97,6 +160,22 @@ class BlobStore(ABC):
     @abstractmethod
     def delete_intent(self, name: str) -> None: ...
 
+    @abstractmethod
+    def trash(self, sha: str) -> Trashed | None:
+        """Move blob `sha` aside (None when it is not there); see `restore` and `purge`."""
+
+    @abstractmethod
+    def trashed(self) -> list[Trashed]:
+        """Everything in the trash (mtime: the trash file's)."""
+
+    @abstractmethod
+    def restore(self, t: Trashed) -> None:
+        """Put a trashed blob back (just drop the trash copy when the blob was stored again)."""
+
+    @abstractmethod
+    def purge(self, t: Trashed) -> None:
+        """Delete a trashed blob for good."""
+
     def rehash(self, sha: str) -> tuple[str, int]:
         with self.open(sha) as f:
             return sha256_stream(f)
@@ -131,12 +210,17 @@ class LocalBlobStore(BlobStore):
 
     def put_file(self, path: Path, sha: str) -> bool:
         final = self.path(sha)
-        if final.is_file() and final.stat().st_size == os.path.getsize(path) and self.intact(sha, final.stat().st_size):
-            os.utime(final)  # refresh mtime so gc's grace period protects a blob about to be referenced
-            return False
+        try:
+            if final.is_file() and final.stat().st_size == os.path.getsize(path) \
+                    and self.intact(sha, final.stat().st_size):
+                os.utime(final)  # refresh mtime: gc sees a blob about to be referenced (see Registry.gc)
+                return False
+        except FileNotFoundError:  # a gc moved it aside meanwhile: store it again
+            pass
         tmp_dir = self.root / TMP_DIR
         tmp_dir.mkdir(parents=True, exist_ok=True)
-        tmp = tmp_dir / uuid.uuid4().hex
+        tmp = tmp_dir / temp_name()
+        _WRITING.add(tmp.name)  # gc leaves a live writer's temp file alone (temp_in_use)
         try:
             h = hashlib.sha256()
             with open(path, "rb") as src, open(tmp, "wb") as out:
@@ -150,6 +234,7 @@ class LocalBlobStore(BlobStore):
             os.replace(tmp, final)
         finally:
             tmp.unlink(missing_ok=True)
+            _WRITING.discard(tmp.name)
         return True
 
     def open(self, sha: str) -> BinaryIO:
@@ -195,6 +280,43 @@ class LocalBlobStore(BlobStore):
     def delete_intent(self, name: str) -> None:
         (self.root / INTENT_DIR / f"{name}.json").unlink(missing_ok=True)
 
+    def trash(self, sha: str) -> Trashed | None:
+        d = self.root / TRASH_DIR
+        d.mkdir(parents=True, exist_ok=True)
+        name = f"{sha}.{temp_name()}"
+        try:
+            os.rename(self.path(sha), d / name)  # atomic: a later os.utime / read of the blob fails
+        except FileNotFoundError:
+            return None
+        try:
+            return Trashed(sha, name, (d / name).stat().st_mtime)  # rename keeps the mtime
+        except FileNotFoundError:  # another gc restored it already
+            return None
+
+    def trashed(self) -> list[Trashed]:
+        d = self.root / TRASH_DIR
+        out = []
+        for p in sorted(d.iterdir()) if d.is_dir() else []:
+            try:
+                out.append(Trashed(p.name[:64], p.name, p.stat().st_mtime))
+            except FileNotFoundError:
+                continue
+        return out
+
+    def restore(self, t: Trashed) -> None:
+        src, final = self.root / TRASH_DIR / t.name, self.path(t.sha256)
+        if final.is_file():
+            src.unlink(missing_ok=True)
+            return
+        final.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            os.replace(src, final)
+        except FileNotFoundError:
+            pass
+
+    def purge(self, t: Trashed) -> None:
+        (self.root / TRASH_DIR / t.name).unlink(missing_ok=True)
+
 
 class ArrowBlobStore(BlobStore):
     """Blobs on any `pyarrow.fs.FileSystem` (S3, GCS, HDFS, local, or fsspec via FSSpecHandler)."""
@@ -213,21 +335,26 @@ class ArrowBlobStore(BlobStore):
     def put_file(self, path: Path, sha: str) -> bool:
         if self.exists(sha) and self.intact(sha, os.path.getsize(path)):
             return False
-        tmp = f"{self.base}/{TMP_DIR}/{uuid.uuid4().hex}"
+        name = temp_name()
+        tmp = f"{self.base}/{TMP_DIR}/{name}"
         final = self.path(sha)
         self.fs.create_dir(f"{self.base}/{TMP_DIR}", recursive=True)
         self.fs.create_dir(final.rsplit("/", 1)[0], recursive=True)
         h = hashlib.sha256()
-        with open(path, "rb") as src, self.fs.open_output_stream(tmp) as out:
-            while chunk := src.read(CHUNK):
-                h.update(chunk)
-                out.write(chunk)
+        _WRITING.add(name)
         try:
-            _check_copy(sha, h.hexdigest(), Path(path))
-            self.fs.move(tmp, final)
-        except BaseException:
-            self.fs.delete_file(tmp)
-            raise
+            with open(path, "rb") as src, self.fs.open_output_stream(tmp) as out:
+                while chunk := src.read(CHUNK):
+                    h.update(chunk)
+                    out.write(chunk)
+            try:
+                _check_copy(sha, h.hexdigest(), Path(path))
+                self.fs.move(tmp, final)
+            except BaseException:
+                self.fs.delete_file(tmp)
+                raise
+        finally:
+            _WRITING.discard(name)
         return True
 
     def open(self, sha: str) -> BinaryIO:
@@ -276,6 +403,43 @@ class ArrowBlobStore(BlobStore):
     def delete_intent(self, name: str) -> None:
         try:
             self.fs.delete_file(f"{self.base}/{INTENT_DIR}/{name}.json")
+        except FileNotFoundError:
+            pass
+
+    def trash(self, sha: str) -> Trashed | None:
+        # an object store's move is a copy: the mtime says nothing, gc relies on its re-check
+        name = f"{sha}.{temp_name()}"
+        self.fs.create_dir(f"{self.base}/{TRASH_DIR}", recursive=True)
+        try:
+            self.fs.move(self.path(sha), f"{self.base}/{TRASH_DIR}/{name}")
+        except FileNotFoundError:
+            return None
+        return Trashed(sha, name, None)
+
+    def trashed(self) -> list[Trashed]:
+        import pyarrow.fs as pafs
+
+        sel = pafs.FileSelector(f"{self.base}/{TRASH_DIR}", allow_not_found=True)
+        out = []
+        for info in self.fs.get_file_info(sel):
+            if info.type == pafs.FileType.File:
+                name = info.path.rsplit("/", 1)[1]
+                out.append(Trashed(name[:64], name, info.mtime.timestamp() if info.mtime else None))
+        return out
+
+    def restore(self, t: Trashed) -> None:
+        src = f"{self.base}/{TRASH_DIR}/{t.name}"
+        try:
+            if self.exists(t.sha256):
+                self.fs.delete_file(src)
+            else:
+                self.fs.move(src, self.path(t.sha256))
+        except FileNotFoundError:
+            pass
+
+    def purge(self, t: Trashed) -> None:
+        try:
+            self.fs.delete_file(f"{self.base}/{TRASH_DIR}/{t.name}")
         except FileNotFoundError:
             pass
 

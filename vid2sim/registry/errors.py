@@ -18,3 +18,7 @@ class RegistryNotFound(RegistryError):
 
 class HistoryLost(RegistryError):
     """The manifest log is missing, has a gap, or is damaged: the registry has lost history."""
+
+
+class BadGracePeriod(RegistryError, ValueError):
+    """`gc` was given a grace period that is negative or not a number."""

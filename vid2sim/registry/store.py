@@ -5,7 +5,8 @@ Layout under the root (a local folder, `file://` URI, or object-store URI):
   manifests/         Delta table, one row per scene version (see manifest.MANIFEST_SCHEMA)
 
 `add` stores every blob BEFORE committing the manifest row, so a row never points at a missing
-blob; a writer killed mid-way leaves at most unreferenced blobs, which `gc` removes.
+blob; a writer killed mid-way leaves at most unreferenced blobs, which `gc` removes. `gc` is
+safe beside running adds at any grace period, 0 included (see `Registry.gc`).
 
 The manifest compacts itself (see `RegistryConfig.auto_compact_files` and manifest.py); nothing
 is ever deleted from it without an explicit `compact(vacuum_hours=...)`, so time travel to any
@@ -22,6 +23,7 @@ handle).
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import tempfile
@@ -34,10 +36,11 @@ from urllib.parse import urlparse
 
 import pyarrow as pa
 
-from vid2sim.registry.blobs import ArrowBlobStore, BlobStore, LocalBlobStore, arrow_filesystem, sha256_file
+from vid2sim.registry.blobs import (ArrowBlobStore, BlobStore, LocalBlobStore, arrow_filesystem,
+                                    name_owner, owner, process_state, sha256_file, temp_in_use)
 from vid2sim.formats.bundle import BundleInfo, validate_bundle
 from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
-from vid2sim.registry.errors import HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
+from vid2sim.registry.errors import BadGracePeriod, HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
 from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS, AsOf, ManifestTable, now_utc
 from vid2sim.registry.query import QueryError, QueryLimits, run_query
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
@@ -47,6 +50,10 @@ from vid2sim.registry.split import Split, SplitConfig, make_split
 DEFAULT_ROOT = "./vid2sim-registry"
 CHECKOUT_MARKER = ".vid2sim-checkout.json"
 GC_GRACE_S = 3600.0
+# leftovers whose writer gc cannot check (another machine, or files that record no owner) are
+# kept at least this long whatever the grace period: the writer may still be running
+UNKNOWN_OWNER_GRACE_S = 3600.0
+_IN_FLIGHT: set[str] = set()  # intents of adds running in this process (process_state "self")
 
 
 @dataclass(frozen=True)
@@ -80,6 +87,16 @@ def parse_ref(ref: str) -> tuple[str, Optional[int]]:
 
 def _refs(table: pa.Table) -> set[str]:
     return {a["sha256"] for arts in table.column("artifacts").to_pylist() for a in arts}
+
+
+def _check_grace(grace_s: float) -> float:
+    try:
+        g = float(grace_s)
+    except (TypeError, ValueError):
+        raise BadGracePeriod(f"gc grace period {grace_s!r}: not a number of seconds") from None
+    if math.isnan(g) or g < 0:
+        raise BadGracePeriod(f"gc grace period {grace_s!r}: must be a number of seconds >= 0")
+    return g
 
 
 def _check_name(name: str) -> str:
@@ -215,12 +232,13 @@ class Registry:
         return make_split(self._latest(as_of), conf, v)
 
     # ------------------------------------------------------------------ add
-    def _store_blobs(self, info: BundleInfo) -> tuple[list[Artifact], str]:
-        """Write an intent naming the blobs, then store them (a bad stored copy is rewritten)."""
+    def _store_blobs(self, info: BundleInfo, intent: Optional[str] = None) -> tuple[list[Artifact], str]:
+        """Write an intent naming the blobs (and this process), then store them (a bad stored
+        copy is rewritten)."""
         arts = [Artifact(_check_name(name), *sha256_file(path)) for name, path in sorted(info.artifacts.items())]
-        intent = uuid.uuid4().hex
+        intent = intent or uuid.uuid4().hex
         self.blobs.write_intent(intent, {"scene_id": info.scene_id, "blobs": [a.sha256 for a in arts],
-                                         "created": time.time()})
+                                         "created": time.time(), "owner": owner()})
         for a in arts:
             self.blobs.put_file(info.artifacts[a.name], a.sha256)
         return arts, intent
@@ -233,7 +251,15 @@ class Registry:
         """`add`, also saying whether this call committed (`noop` is False only if it did)."""
         info = validate_bundle(bundle_dir)
         self._check_writable()
-        arts, intent = self._store_blobs(info)
+        intent = uuid.uuid4().hex
+        _IN_FLIGHT.add(intent)  # before the intent exists: a gc in this process honours it
+        try:
+            return self._add(info, intent)
+        finally:
+            _IN_FLIGHT.discard(intent)
+
+    def _add(self, info: BundleInfo, intent: str) -> AddResult:
+        arts, intent = self._store_blobs(info, intent)
         chash = content_hash(arts)
         scene, src = info.scene, info.scene["source"]
         result: dict = {}
@@ -414,38 +440,105 @@ class Registry:
     def gc(self, grace_s: float = GC_GRACE_S, dry_run: bool = False, force: bool = False) -> list[str]:
         """Delete blobs of adds that never committed, and stale temp files, older than `grace_s`.
 
+        Safe beside running adds and other gcs at any grace period (0 included):
+        - the adds' intents are read first, then the manifest rows, then the blob listing; a blob
+          goes only when no row references it, no running add's intent names it (an add whose
+          process is alive on this machine is protected whatever its age; one from another
+          machine for at least UNKNOWN_OWNER_GRACE_S) and its mtime is older than the cutoff;
+        - such a blob is first moved to the trash; then the intents and the rows are read again
+          (an add that started after the first read, a commit after it) and the mtime compared
+          (an add re-storing identical bytes touches it): anything that now needs it is restored;
+        - a temp file goes only when its writer is known to be dead (or, recording no owner,
+          after UNKNOWN_OWNER_GRACE_S); an add never loses its temp file.
         Refuses (HistoryLost) when the log has a gap or when blobs exist that neither a manifest
-        row nor an add in flight accounts for, since that means lost history; `force` deletes
+        row nor an add's intent accounts for, since that means lost history; `force` deletes
         every unreferenced blob anyway. Returns what it removed (or would remove).
         """
+        grace_s = _check_grace(grace_s)
         if not force:
             bad = self.manifest.log_problems(deep=True)
             if bad:
                 raise HistoryLost(f"gc refused: {bad[0]}; run `vid2sim registry verify` (--force deletes anyway)")
+        start = time.time()
+        cutoff = start - grace_s
+        if not dry_run:
+            self._recover_trash()
+        intents = self.blobs.intents()  # (1) before the rows: an add not seen here stores after it
+        guarded = self._guarded(intents, start, grace_s)
         try:
-            refs = self.referenced(check=not force)
+            refs = self.referenced(check=not force)  # (2)
         except HistoryLost:
             if not force:
                 raise
             refs = set()
-        cutoff = time.time() - grace_s
         orphans = self._unaccounted(refs, cutoff)
         if orphans and not force:
             raise HistoryLost(f"gc refused: {len(orphans)} blob(s) are referenced by no manifest row and no add "
                               f"in flight, so the manifest may have lost history; run `vid2sim registry verify` "
                               f"(--force deletes them)")
-        pending, names = self._pending()
-        removed = []
-        for b in list(self.blobs.list()):
-            fresh = pending.get(b.sha256, 0.0) > cutoff
-            if b.mtime <= cutoff and (b.is_temp or (b.sha256 not in refs and not fresh)):
-                if not dry_run:
-                    self.blobs.delete(b)
-                removed.append(("tmp/" if b.is_temp else "") + b.sha256)
-        for name, mtime in names.items():
-            if mtime <= cutoff and not dry_run:
-                self.blobs.delete_intent(name)
-        return removed
+        listing = list(self.blobs.list())  # (3)
+        cands = {b.sha256: b.mtime for b in listing
+                 if not b.is_temp and b.sha256 not in refs and b.sha256 not in guarded and b.mtime <= cutoff}
+        temps = [b for b in listing if b.is_temp and self._stale_temp(b.sha256, b.mtime, start, grace_s)]
+        if dry_run:
+            return sorted(cands) + [f"tmp/{b.sha256}" for b in temps]
+        trashed = [t for t in (self.blobs.trash(sha) for sha in sorted(cands)) if t is not None]
+        gone: set[str] = set()
+        if trashed:  # (4) what started to need them after (1)-(3)
+            guarded |= self._guarded(self.blobs.intents(), start, grace_s)
+            refs |= _refs(self.manifest.read(check=False)[1]) if self.manifest.exists() else set()
+            for t in trashed:
+                touched = t.mtime is not None and t.mtime != cands[t.sha256]
+                if touched or t.sha256 in guarded or t.sha256 in refs:
+                    self.blobs.restore(t)
+                else:
+                    self.blobs.purge(t)
+                    gone.add(t.sha256)
+        for b in temps:
+            if not temp_in_use(b.sha256):  # (re-checked: the writer may be this process)
+                self.blobs.delete(b)
+        left = {b.sha256 for b in listing if not b.is_temp} - gone - refs
+        for name, data, mtime in intents:
+            if not self._guards(name, data, mtime, start, grace_s) and not set(data.get("blobs", [])) & left:
+                self.blobs.delete_intent(name)  # its writer is gone and so are its blobs
+        return sorted(gone) + [f"tmp/{b.sha256}" for b in temps]
+
+    @staticmethod
+    def _guards(name: str, data: dict, mtime: float, start: float, grace_s: float) -> bool:
+        """Whether an add's intent still protects its blobs (see `gc`)."""
+        own = data.get("owner") or {}
+        state = process_state(own.get("host"), own.get("pid"))
+        if state == "alive":
+            return True
+        if state == "self":
+            return name in _IN_FLIGHT
+        if state == "dead":
+            return mtime > start - grace_s
+        return mtime > start - max(grace_s, UNKNOWN_OWNER_GRACE_S)
+
+    def _guarded(self, intents: list[tuple[str, dict, float]], start: float, grace_s: float) -> set[str]:
+        """Blobs named by intents that still protect them."""
+        out: set[str] = set()
+        for name, data, mtime in intents:
+            if self._guards(name, data, mtime, start, grace_s):
+                out.update(data.get("blobs", []))
+        return out
+
+    @staticmethod
+    def _stale_temp(name: str, mtime: float, start: float, grace_s: float) -> bool:
+        """A temp file gc may delete: its writer is dead (or unknown and long silent)."""
+        state = process_state(*name_owner(name))
+        if state in ("alive", "self"):
+            return state == "self" and not temp_in_use(name) and mtime <= start - grace_s
+        if state == "dead":
+            return mtime <= start - grace_s
+        return mtime <= start - max(grace_s, UNKNOWN_OWNER_GRACE_S)
+
+    def _recover_trash(self) -> None:
+        """Put back blobs a gc that is no longer running left in the trash (it was killed mid-way)."""
+        for t in self.blobs.trashed():
+            if process_state(*name_owner(t.name[65:])) not in ("alive", "self"):
+                self.blobs.restore(t)
 
     def compact(self, vacuum_hours: Optional[int] = None, dry_run: bool = False) -> dict:
         """Merge the manifest's small Parquet files + checkpoint; rows and history unchanged.

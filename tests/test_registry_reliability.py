@@ -1,0 +1,187 @@
+"""Registry reliability on real files and real processes.
+
+- `gc` at any grace period (0 included) beside concurrent `add`s: no committed scene loses a
+  blob, no add dies on its own temp file, and the leftovers of killed adds still go.
+- Bad grace periods are a named error.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from registry_fixtures import make_bundle
+
+from vid2sim.registry import Registry, RegistryError
+
+TESTS_DIR = Path(__file__).resolve().parent
+PROJECT = TESTS_DIR.parent
+
+ADD_LOOP = """
+import sys, traceback
+from vid2sim.registry.store import Registry
+reg = Registry(sys.argv[1])
+reg.version
+print("ready", flush=True)
+try:
+    for b in sys.argv[2:]:
+        rec = reg.add(b)
+        print("added", rec.ref, flush=True)
+except BaseException:
+    traceback.print_exc()
+    sys.exit(1)
+"""
+
+GC_LOOP = """
+import json, os, sys, traceback
+from vid2sim.registry.store import Registry
+reg = Registry(sys.argv[1])
+stop = sys.argv[2]
+runs, removed = 0, []
+print("ready", flush=True)
+try:
+    while True:
+        last = os.path.exists(stop)
+        removed += reg.gc(grace_s=0)
+        runs += 1
+        if last:
+            break
+except BaseException:
+    traceback.print_exc()
+    sys.exit(1)
+print(json.dumps({"runs": runs, "removed": removed}), flush=True)
+"""
+
+STORE_THEN_DIE = """
+import sys
+from vid2sim.registry import validate_bundle
+from vid2sim.registry.store import Registry
+reg = Registry(sys.argv[1])
+for b in sys.argv[2:]:
+    reg._store_blobs(validate_bundle(b))  # an add killed after storing its blobs, before its commit
+"""
+
+
+def _env() -> dict:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(TESTS_DIR), str(PROJECT),
+                                                         os.environ.get("PYTHONPATH", "")])}
+
+
+def _spawn(script: str, err: Path, *args: str) -> subprocess.Popen:
+    """A real process; stdout is read through the pipe (one pipe: `finish` loses no line)."""
+    return subprocess.Popen([sys.executable, "-c", script, *args], stdout=subprocess.PIPE,
+                            stderr=err.open("w"), text=True, env=_env())
+
+
+def _finish(p: subprocess.Popen, err: Path, timeout: float) -> tuple[str, str]:
+    out = p.stdout.read()  # the rest after "ready" (same buffered reader: nothing skipped)
+    p.wait(timeout=timeout)
+    return out, err.read_text()
+
+
+@pytest.mark.timeout(240)
+def test_gc_grace_zero_beside_concurrent_adds(tmp_path):
+    root = str(tmp_path / "reg")
+    reg = Registry(root)
+    reg.add(make_bundle(tmp_path / "first", "first"))
+    n_workers, n_each = 3, 8
+    jobs = [[str(make_bundle(tmp_path / f"w{w}-{i}", f"w{w}-s{i}", seed=100 * w + i, n_splats=4000))
+             for i in range(n_each)] for w in range(n_workers)]
+    # leftovers of killed adds: the blobs of half the bundles the workers will add (identical
+    # content: gc's orphans become referenced again mid-run), and of bundles nobody adds
+    dead = [str(make_bundle(tmp_path / f"dead{i}", f"dead{i}", seed=900 + i)) for i in range(3)]
+    readd = [b for w in jobs for b in w[::2]]
+    subprocess.run([sys.executable, "-c", STORE_THEN_DIE, root, *readd, *dead], check=True, env=_env(),
+                   timeout=120)
+    dead_blobs = {a for b in dead for a in _shas(b)} - {a for w in jobs for b in w for a in _shas(b)}
+    assert dead_blobs and dead_blobs <= {b.sha256 for b in reg.blobs.list()}
+
+    stop = tmp_path / "stop"
+    gc_proc = _spawn(GC_LOOP, tmp_path / "gc.err", root, str(stop))
+    adders = [_spawn(ADD_LOOP, tmp_path / f"add{w}.err", root, *jobs[w]) for w in range(n_workers)]
+    for p in [gc_proc, *adders]:
+        assert p.stdout.readline().strip() == "ready"
+    outs = [_finish(p, tmp_path / f"add{w}.err", 180) for w, p in enumerate(adders)]
+    stop.touch()
+    gc_out, gc_err = _finish(gc_proc, tmp_path / "gc.err", 120)
+    for p, (out, err) in zip(adders, outs):
+        assert p.returncode == 0, err[-3000:]
+    assert gc_proc.returncode == 0, gc_err[-3000:]
+    summary = json.loads(gc_out.strip().splitlines()[-1])
+    assert summary["runs"] >= 2
+
+    reg = Registry(root)
+    added = {line.split()[1].split("@")[0] for out, _ in outs for line in out.splitlines()
+             if line.startswith("added")}
+    want = {f"w{w}-s{i}" for w in range(n_workers) for i in range(n_each)}
+    assert added == want
+    assert {r.scene_id for r in reg.list()} == want | {"first"}
+    assert reg.verify() == []  # every committed scene's blobs present and intact, nothing stray
+    for r in reg.list():
+        for a in r.artifacts:
+            assert reg.blobs.intact(a.sha256, a.size), f"{r.ref}:{a.name}"
+    stored = {b.sha256 for b in reg.blobs.list() if not b.is_temp}
+    assert not dead_blobs & stored  # the killed adds' leftovers went
+    assert reg.blobs.intents() == [] and not [b for b in reg.blobs.list() if b.is_temp]
+
+
+@pytest.mark.parametrize("grace", [-1.0, float("nan"), float("-inf")])
+def test_gc_rejects_negative_or_nan_grace(tmp_path, grace):
+    from vid2sim.registry.errors import BadGracePeriod
+
+    reg = Registry(tmp_path / "reg")
+    reg.add(make_bundle(tmp_path / "a", "a"))
+    before = {b.sha256 for b in reg.blobs.list()}
+    with pytest.raises(BadGracePeriod, match="grace"):
+        reg.gc(grace_s=grace)
+    assert issubclass(BadGracePeriod, RegistryError)
+    assert {b.sha256 for b in reg.blobs.list()} == before
+    assert reg.gc(grace_s=float("inf")) == []  # inf: keeps everything
+
+
+def test_gc_cli_rejects_bad_grace(tmp_path):
+    reg = Registry(tmp_path / "reg")
+    reg.add(make_bundle(tmp_path / "a", "a"))
+    for bad in ("-5", "nan"):
+        r = subprocess.run([sys.executable, "-m", "vid2sim.cli", "registry", "gc", "-r", reg.root,
+                            "--grace-seconds", bad], capture_output=True, text=True, timeout=120, env=_env())
+        assert r.returncode == 2 and "grace" in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_gc_never_deletes_a_live_writers_temp_file(tmp_path):
+    """A temp file whose writer is alive stays, however old; a dead writer's goes."""
+    reg = Registry(tmp_path / "reg")
+    reg.add(make_bundle(tmp_path / "a", "a"))
+    from vid2sim.registry.blobs import temp_name
+
+    tmp_dir = Path(reg.root) / "blobs" / "tmp"
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        live = tmp_dir / temp_name(pid=sleeper.pid)
+        live.write_bytes(b"half a blob being written")
+        gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dead = tmp_dir / temp_name(pid=int(gone))
+        dead.write_bytes(b"half a blob of a killed writer")
+        old = time.time() - 10 * 24 * 3600
+        for p in (live, dead):
+            os.utime(p, (old, old))
+        removed = reg.gc(grace_s=0)
+        assert live.exists() and not dead.exists()
+        assert removed == [f"tmp/{dead.name}"]
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    assert reg.gc(grace_s=0) == [f"tmp/{live.name}"]  # its writer is gone now
+
+
+def _shas(bundle: str) -> set[str]:
+    from vid2sim.registry import validate_bundle
+    from vid2sim.registry.blobs import sha256_file
+
+    return {sha256_file(p)[0] for p in validate_bundle(bundle).artifacts.values()}
