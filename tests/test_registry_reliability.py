@@ -185,3 +185,130 @@ def _shas(bundle: str) -> set[str]:
     from vid2sim.registry.blobs import sha256_file
 
     return {sha256_file(p)[0] for p in validate_bundle(bundle).artifacts.values()}
+
+
+# ---------------------------------------------------------------------------- every read path checks
+
+LOG = Path("manifests") / "_delta_log"
+
+
+def _cli(*args: str):
+    """`vid2sim registry ARGS` in-process (result has returncode, stdout, stderr)."""
+    from typer.testing import CliRunner
+
+    from vid2sim.cli.app import app
+
+    r = CliRunner().invoke(app, ["registry", *args])
+    r.returncode = r.exit_code
+    return r
+
+
+def _four(tmp_path: Path) -> Registry:
+    reg = Registry(tmp_path / "reg")  # versions: 0 create, 1..4 one add each
+    for i in range(4):
+        reg.add(make_bundle(tmp_path / f"b{i}", f"s{i}", seed=i, group=f"g{i}"))
+    return reg
+
+
+@pytest.mark.parametrize("damage", ["empty", "missing"])
+def test_time_travel_checks_log_continuity(tmp_path, damage):
+    from vid2sim.registry import HistoryLost
+
+    reg = _four(tmp_path)
+    assert [r.scene_id for r in reg.list(as_of=3)] == ["s0", "s1", "s2"]
+    entry = Path(reg.root) / LOG / f"{2:020d}.json"
+    saved = entry.read_bytes()
+    entry.write_bytes(b"") if damage == "empty" else entry.unlink()
+    why = "version 2 is empty" if damage == "empty" else "version 2 is missing"
+    fresh = Registry(reg.root)
+    for as_of in (1, 3, 4, "2100-01-01T00:00:00"):
+        for read in (lambda: fresh.list(as_of=as_of), lambda: fresh.query("select * from latest", as_of=as_of),
+                     lambda: fresh.split(as_of=as_of), lambda: fresh.history(as_of=as_of)):
+            with pytest.raises(HistoryLost, match=why):
+                read()
+    for cmd in (["list"], ["query", "select scene_id from latest"], ["split"]):
+        r = _cli(*cmd, "-r", reg.root, "--as-of", "3")
+        assert r.returncode == 2 and why in r.stderr and "Traceback" not in r.stderr, (cmd, r.stderr)
+    entry.write_bytes(saved)
+    assert [r.scene_id for r in Registry(reg.root).list(as_of=3)] == ["s0", "s1", "s2"]
+
+
+def test_time_travel_to_a_version_that_does_not_exist_is_named(tmp_path):
+    reg = _four(tmp_path)
+    for v in (5, 99, -1):
+        with pytest.raises(ValueError, match="no such registry version"):
+            reg.list(as_of=v)
+
+
+def test_checkout_reverifies_an_existing_destination(tmp_path):
+    from vid2sim.registry.blobs import sha256_file
+
+    reg = _four(tmp_path)
+    rec = reg.show("s1")
+    dest = reg.checkout("s1", dest=tmp_path / "co")
+    want = {a.name: a.sha256 for a in rec.artifacts}
+    splats = bytearray((dest / "splats.ply").read_bytes())
+    splats[len(splats) // 2] ^= 0xFF  # bit rot, same size
+    (dest / "splats.ply").write_bytes(bytes(splats))
+    (dest / "preview.png").write_bytes((dest / "preview.png").read_bytes()[:10])  # truncated
+    (dest / "walkable.npz").unlink()
+    (dest / "scene.json").write_text("{}")  # edited by hand
+    (dest / "notes.txt").write_text("mine")  # not an artifact: left alone
+    assert reg.checkout("s1", dest=dest) == dest
+    assert {n: sha256_file(dest / n)[0] for n in want} == want
+    assert (dest / "notes.txt").read_text() == "mine"
+    assert not [p for p in dest.iterdir() if ".tmp-" in p.name]
+    (dest / "collision.ply").write_bytes(b"")
+    r = _cli("checkout", "s1", "--dest", str(dest), "-r", reg.root)
+    assert r.returncode == 0, r.stderr
+    assert sha256_file(dest / "collision.ply")[0] == want["collision.ply"]
+    # a corrupt blob is refused, not copied into the checkout
+    blob = reg.blobs.path(want["scene.json"])
+    blob.write_bytes(blob.read_bytes()[:-1] + b" ")
+    (dest / "scene.json").write_text("{}")
+    with pytest.raises(RegistryError, match="corrupt"):
+        reg.checkout("s1", dest=dest)
+    assert (dest / "scene.json").read_text() == "{}" and not [p for p in dest.iterdir() if ".tmp-" in p.name]
+
+
+def test_a_folder_that_is_not_a_registry_is_a_named_error(tmp_path):
+    from vid2sim.registry import RegistryNotFound
+
+    plain = tmp_path / "photos"
+    plain.mkdir()
+    (plain / "a.jpg").write_bytes(b"not a registry")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    for folder in (plain, empty):
+        before = sorted(p.relative_to(folder) for p in folder.rglob("*"))
+        reg = Registry(folder)
+        for read in (reg.list, reg.verify, reg.history, lambda: reg.gc(grace_s=0), lambda: reg.compact(),
+                     lambda: reg.show("a")):
+            with pytest.raises(RegistryNotFound, match="no registry at"):
+                read()
+        for cmd in (["list"], ["verify"], ["gc", "--grace-seconds", "0"], ["compact"]):
+            r = _cli(*cmd, "-r", str(folder))
+            assert r.returncode == 2 and "no registry at" in r.stderr and "Traceback" not in r.stderr, (cmd, r.stderr)
+        assert sorted(p.relative_to(folder) for p in folder.rglob("*")) == before  # nothing written
+
+
+def test_mutations_never_create_a_registry(tmp_path):
+    from vid2sim.registry import RegistryNotFound
+
+    real = _four(tmp_path)
+    typo = tmp_path / "regsitry"
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    for root in (typo, plain):
+        reg = Registry(root)
+        for change in (lambda: reg.tag("s0", "x"), lambda: reg.untag("s0", "x"),
+                       lambda: reg.deprecate("s0", "bad")):
+            with pytest.raises(RegistryNotFound, match="no registry at"):
+                change()
+        for cmd in (["tag", "s0", "x"], ["untag", "s0", "x"], ["deprecate", "s0", "--reason", "bad"]):
+            r = _cli(*cmd, "-r", str(root))
+            assert r.returncode == 2 and "no registry at" in r.stderr, (cmd, r.stderr)
+        assert not typo.exists() and list(plain.iterdir()) == []
+    assert real.tag("s0", "x").version == 2  # a real registry still takes them
+    added = Registry(typo).add(make_bundle(tmp_path / "n", "n"))  # only add creates one
+    assert added.version == 1 and (typo / LOG).is_dir()

@@ -27,7 +27,7 @@ from typing import Callable, Optional, Union
 
 import pyarrow as pa
 
-from vid2sim.registry.errors import HistoryLost
+from vid2sim.registry.errors import HistoryLost, RegistryNotFound
 
 ARTIFACT_TYPE = pa.struct([("name", pa.string()), ("sha256", pa.string()), ("size", pa.int64())])
 
@@ -150,8 +150,9 @@ class ManifestTable:
         try:
             return fn()
         except (DeltaError, OSError) as e:
+            found = self.log_problems() if self.local else []  # name the gap rather than delta-rs's words
             first = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
-            raise HistoryLost(f"{self.uri}: manifest log unreadable ({first}); "
+            raise HistoryLost(f"{self.uri}: {found[0] if found else f'manifest log unreadable ({first})'}; "
                               f"run `vid2sim registry verify`") from None
 
     def _create(self) -> None:
@@ -227,7 +228,14 @@ class ManifestTable:
             if self._cache is None or self._cache[0] != v:
                 self._cache = (v, self._guard(lambda: self._to_arrow(self._dt)))
             return self._cache
-        dt = DeltaTable(self.uri, storage_options=self.storage_options)
+        # time travel runs the latest read's checks first: a gap or an emptied entry anywhere in
+        # the log is lost history (HistoryLost), never a silently shorter past
+        latest = self.refresh(check)
+        if latest < 0:
+            raise ValueError(f"as-of {as_of!s}: the registry has no versions yet")
+        if isinstance(as_of, int) and not 0 <= as_of <= latest:
+            raise ValueError(f"as-of {as_of}: no such registry version (latest is {latest})")
+        dt = self._guard(lambda: DeltaTable(self.uri, storage_options=self.storage_options))
         try:
             dt.load_as_version(as_of)
         except Exception as e:
@@ -252,16 +260,18 @@ class ManifestTable:
 
     # -- writes
     def commit(self, build: Callable[[int, pa.Table], Optional[list[dict]]], *, max_attempts: int = 400,
-               operation: str = "append") -> tuple[Optional[int], Optional[list[dict]]]:
+               operation: str = "append", create: bool = True) -> tuple[Optional[int], Optional[list[dict]]]:
         """Append the rows `build(version, rows)` returns, rebuilding on conflict.
 
         Returns (committed registry version, rows) or (None, None) when `build` returned None
-        (nothing to do at that snapshot).
+        (nothing to do at that snapshot). Without `create`, a missing table is RegistryNotFound.
         """
         from deltalake import CommitProperties, write_deltalake
         from deltalake.exceptions import CommitFailedError
 
-        self._open(create=True)
+        if self._open(create=create) is None:
+            raise RegistryNotFound(f"no registry at {self.uri.removesuffix('/manifests')} (no manifest log; "
+                                   f"`registry add` creates one)")
         for attempt in range(max_attempts):
             v, table = self.read()
             rows = build(v, table)

@@ -163,6 +163,15 @@ class Registry:
             raise HistoryLost(f"{self.root}: the manifest log is missing but the blob store holds "
                               f"{len(orphans)} blob(s): the registry has lost its history "
                               f"(`gc` refuses to delete them without --force)")
+        if not write:  # a registry is recognised by its manifest log, not by a folder existing
+            raise RegistryNotFound(f"no registry at {self.root} (no manifest log under manifests/; "
+                                   f"`registry add` creates one)")
+
+    def _require_registry(self) -> None:
+        """RegistryNotFound / HistoryLost unless the root holds a registry (never creates one)."""
+        self._check_root()
+        if not self.manifest.exists():
+            self._check_missing_log()
 
     def _check_writable(self) -> None:
         """Refuse to commit on top of lost history (a missing or gapped log)."""
@@ -305,6 +314,7 @@ class Registry:
 
     # ------------------------------------------------------------------ mutations (append a new version)
     def _mutate(self, scene_id: str, event: str, change) -> SceneRecord:
+        self._require_registry()  # tag/untag/deprecate never create a registry (only add does)
         result: dict = {}
 
         def build(v: int, table: pa.Table) -> Optional[list[dict]]:
@@ -319,7 +329,7 @@ class Registry:
             result["rec"] = rec
             return [rec.to_row()]
 
-        self.manifest.commit(build, operation=f"{event} {scene_id}")
+        self.manifest.commit(build, operation=f"{event} {scene_id}", create=False)
         return result["rec"]
 
     def tag(self, scene_id: str, *tags: str) -> SceneRecord:
@@ -548,6 +558,7 @@ class Registry:
         versions older than that window fails afterwards. Metrics gain "vacuumed": [file names]
         (with `dry_run`: what vacuum would delete; nothing is deleted).
         """
+        self._require_registry()
         metrics = self._compact_retrying()  # non-destructive: always runs
         if vacuum_hours is not None:
             metrics["vacuumed"] = self.manifest.vacuum(vacuum_hours, dry_run=dry_run,
@@ -572,7 +583,10 @@ class Registry:
                  as_of: AsOf = None) -> Path:
         """Materialise a bundle folder (hash-verified) for the envs; reuses a finished checkout.
 
-        dest defaults to ./vid2sim-checkouts/<scene_id>@<version>.
+        A finished checkout of the same content is verified before it is handed back: every
+        artifact file's size and sha256 against the manifest; a file that is missing or differs
+        (edited, truncated, bit rot) is rewritten from its verified blob. Other files in the
+        folder are left alone. dest defaults to ./vid2sim-checkouts/<scene_id>@<version>.
         """
         rec = self.show(check_scene_id(scene_id), version, as_of=as_of)
         out = Path(dest) if dest is not None else Path("vid2sim-checkouts") / rec.ref
@@ -580,8 +594,12 @@ class Registry:
             raise RegistryError(f"{out}: checkout destination is a file, not a folder")
         marker = out / CHECKOUT_MARKER
         if marker.is_file():
-            done = json.loads(marker.read_text())
-            if done.get("content_hash") == rec.content_hash:
+            try:
+                done = json.loads(marker.read_text())
+            except (ValueError, UnicodeDecodeError):
+                done = {}
+            if isinstance(done, dict) and done.get("content_hash") == rec.content_hash:
+                self.refresh_checkout(rec, out)
                 return out
         if out.exists() and any(out.iterdir()):
             raise RegistryError(f"{out}: checkout destination exists and holds something else")
@@ -606,6 +624,35 @@ class Registry:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
         return out
+
+    def refresh_checkout(self, rec: SceneRecord, out: Path) -> list[str]:
+        """Check each artifact file of checkout `out` (size, then sha256) and rewrite the ones
+        that differ from `rec` from their blobs (written beside, then renamed). Returns their names."""
+        fixed = []
+        for a in rec.artifacts:
+            target = out / _check_name(a.name)
+            try:
+                ok = target.is_file() and target.stat().st_size == a.size and sha256_file(target)[0] == a.sha256
+            except OSError:
+                ok = False
+            if ok:
+                continue
+            if target.is_dir() and not target.is_symlink():
+                shutil.rmtree(target)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            tmp = target.parent / f".{target.name}.tmp-{uuid.uuid4().hex}"
+            try:
+                try:
+                    got, size = self.blobs.copy_to(a.sha256, tmp)
+                except (FileNotFoundError, OSError) as e:
+                    raise RegistryError(f"{rec.ref}: artifact {a.name} blob {a.sha256} is missing ({e})") from None
+                if got != a.sha256 or size != a.size:
+                    raise RegistryError(f"{rec.ref}: artifact {a.name} blob {a.sha256} is corrupt (hashes to {got})")
+                os.replace(tmp, target)
+            finally:
+                tmp.unlink(missing_ok=True)
+            fixed.append(a.name)
+        return fixed
 
     def scene_json(self, scene_id: str, version: Optional[int] = None) -> dict:
         """The stored scene.json of a scene version (read from its blob)."""
