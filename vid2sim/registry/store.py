@@ -43,6 +43,7 @@ from vid2sim.formats.scene import SCENE_JSON, TAG_RE, check_scene_id
 from vid2sim.registry.errors import BadGracePeriod, HistoryLost, RegistryError, RegistryNotFound, SceneNotFound
 from vid2sim.registry.manifest import MIN_FULL_VACUUM_HOURS, AsOf, ManifestTable, now_utc
 from vid2sim.registry.query import QueryError, QueryLimits, run_query
+from vid2sim.registry.redact import redact_uri
 from vid2sim.registry.records import (ACTIVE, DEPRECATED, Artifact, SceneRecord, content_hash, latest_rows,
                                       records)
 from vid2sim.registry.split import Split, SplitConfig, make_split
@@ -259,6 +260,11 @@ class Registry:
     def add_result(self, bundle_dir: str | os.PathLike) -> AddResult:
         """`add`, also saying whether this call committed (`noop` is False only if it did)."""
         info = validate_bundle(bundle_dir)
+        uri = info.scene["source"]["uri"]
+        if redact_uri(uri) != uri:  # scene.json is stored as it is: nothing that may be a credential
+            raise RegistryError(f"{info.scene_id}: scene.json source.uri carries user info, a fragment or query "
+                                f"parameters outside the allow-list (possible credentials); write its redacted "
+                                f"form {redact_uri(uri)!r} (vid2sim.registry.redact)")
         self._check_writable()
         intent = uuid.uuid4().hex
         _IN_FLIGHT.add(intent)  # before the intent exists: a gc in this process honours it

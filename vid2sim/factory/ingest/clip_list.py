@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
-from vid2sim.factory.ingest.sources import is_uri
+from vid2sim.factory.ingest.sources import is_uri, uri_name
 from vid2sim.factory.runtime.stage_cache import StageError
 
 STAGE = "manifest"
@@ -149,5 +149,5 @@ def _check_spelling(rec: dict, where: str) -> None:
 
 
 def _stem(source: str) -> str:
-    name = source.split("?")[0].rstrip("/").rsplit("/", 1)[-1]
+    name = uri_name(source)  # never the query, fragment or user info of a URI (secrets)
     return name.rsplit(".", 1)[0] if "." in name else name

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Optional, Union
 
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.registry.redact import redact_uri, scrub, scrubbed_logs  # the allow-list lives with the registry
 
 STAGE = "ingest"
 VIDEO_EXTS = (".mp4", ".mov", ".avi", ".mkv", ".m4v", ".webm")
@@ -76,23 +77,18 @@ def is_uri(spec: str) -> bool:
     return bool(_URI_RE.match(str(spec)))
 
 
-SECRET_PARAMS = re.compile(r"(?i)^(x-amz-.*|x-goog-.*|signature|sig|se|sp|sv|sr|skoid|sktid|skt|ske|sks|skv|"
-                           r"awsaccesskeyid|expires|policy|key-pair-id|token|access_token|auth|key|apikey|"
-                           r"api_key|password|pass|secret|credential|session_token)$")
+def uri_name(uri: str) -> str:
+    """The file name a source names: the last segment of a URI's path (no query, fragment or
+    user info), or of a local path."""
+    from urllib.parse import unquote, urlsplit
 
-
-def redact_uri(uri: str) -> str:
-    """`uri` without user info and signed / secret query parameters (what may be stored or printed)."""
-    from urllib.parse import parse_qsl, urlencode, urlsplit, urlunsplit
-
-    if not is_uri(uri):
-        return uri
-    parts = urlsplit(uri)
-    host = parts.hostname or ""
-    netloc = host + (f":{parts.port}" if parts.port else "")
-    query = urlencode([(k, v) for k, v in parse_qsl(parts.query, keep_blank_values=True)
-                       if not SECRET_PARAMS.match(k)])
-    return urlunsplit((parts.scheme, netloc, parts.path, query, parts.fragment))
+    if is_uri(uri):
+        try:
+            path = urlsplit(uri).path
+        except ValueError:
+            path = ""
+        return Path(unquote(path).rstrip("/")).name
+    return Path(uri).name
 
 
 def resolve_source(spec: Union[str, Path], cache_dir: Optional[Path] = None,
@@ -104,6 +100,7 @@ def resolve_source(spec: Union[str, Path], cache_dir: Optional[Path] = None,
         return _local_source(path, redact_uri(spec_s), expected_sha256)
     if spec_s.startswith("file://"):
         spec_s = spec_s[len("file://"):]
+        return _local_source(Path(spec_s), redact_uri(str(spec)), expected_sha256)
     return _local_source(Path(spec_s), str(spec), expected_sha256)
 
 
@@ -127,7 +124,7 @@ def _local_source(path: Path, uri: str, expected_sha256: Optional[str]) -> Sourc
 def fetch_uri(uri: str, cache_dir: Path, expected_sha256: Optional[str] = None) -> Path:
     """Download `uri` once into `cache_dir`; reuse the cached copy while its sha256 matches."""
     slot = Path(cache_dir) / hashlib.sha256(uri.encode()).hexdigest()[:16]
-    name = Path(uri.split("?")[0].rstrip("/")).name or "source"
+    name = uri_name(uri) or "source"
     target, meta = slot / name, slot / "source.json"
     if target.is_file() and meta.is_file():
         recorded = json.loads(meta.read_text()).get("sha256")
@@ -173,14 +170,14 @@ def _open_uri(uri: str):
 
 def _copy_uri(uri: str, out) -> None:
     try:
-        with _open_uri(uri) as f:
+        with scrubbed_logs(uri), _open_uri(uri) as f:  # backends log the full URL at DEBUG
             while block := f.read(1 << 20):
                 out.write(block)
     except ImportError as e:  # e.g. s3fs / gcsfs not installed
-        raise StageError(STAGE, "unsupported_uri", f"{redact_uri(uri)}: {e}") from None
+        raise StageError(STAGE, "unsupported_uri", f"{redact_uri(uri)}: {scrub(str(e), uri)}") from None
     except FileNotFoundError:
         raise StageError(STAGE, "unreachable_uri", f"{redact_uri(uri)}: nothing found at that address "
                                                    "(HTTP 404 or no such object)") from None
     except Exception as e:  # noqa: BLE001 - network/filesystem errors of any backend
-        detail = str(e).replace(uri, redact_uri(uri)).splitlines()[0][:200] if str(e) else ""
+        detail = scrub(str(e), uri).splitlines()[0][:200] if str(e) else ""
         raise StageError(STAGE, "unreachable_uri", f"{redact_uri(uri)}: {type(e).__name__} {detail}") from None
