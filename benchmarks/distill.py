@@ -1,17 +1,19 @@
 """Pixel agents distilled from the A* teacher: held-out success over seeds, SocialNav, the scene-count study.
 
-    python benchmarks/distill.py heldout --streets 12 --seeds 0 1 2 --steps 64000 [--socialnav]
+    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav]
     python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
-    python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 rounds (smoke run)
+    python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 small rounds (smoke run)
 
 Scenes: synthetic-street ground-truth bundles whose layout, furniture and light differ by seed
 (`benchmarks/street_registry.py --vary`, `vid2sim.factory.synthetic.varied`); the registry's
 split (seed 0, 20 % of the streets) holds out whole streets. Training: `vid2sim train --method
 distill` (`training/distill.py`), in-process envs (so the process's CPU seconds are the whole
-cost), fast render fidelity with training augmentation. Evaluation: `vid2sim eval policy`'s
-protocol: 25 trials per held-out street (seeds 1000 + k), 0-5 static obstacles, exact render
-fidelity, no jitter or augmentation, the env's 3000-step limit; SR, SPL and Cost with 95 %
-bootstrap intervals; `--socialnav` also evaluates the same students with 1-4 pedestrians (SR, SNS).
+cost), exact render fidelity (`--fidelity`; fast first fits a sim-ready set per street) with
+training augmentation. Evaluation: `vid2sim eval policy`'s protocol: 25 trials per held-out
+street (seeds 1000 + k), 0-5 static obstacles, exact render fidelity, no jitter or augmentation,
+a 600-step limit (`--eval-max-steps`, 0: the env's 3000; a robot pressed against geometry it
+cannot leave would otherwise cost 3000 steps per failure); SR, SPL and Cost with 95 % bootstrap
+intervals; `--socialnav` also evaluates the same students with 1-4 pedestrians (SR, SNS).
 Every figure states its budget (env steps, wall and CPU seconds).
 """
 
@@ -34,6 +36,7 @@ from vid2sim.training.config import DistillConfig, TrainConfig  # noqa: E402
 from vid2sim.training.distill import train_distill  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
+from vid2sim.training.student import StudentConfig  # noqa: E402
 from vid2sim.training.study import StudyConfig, aggregate, run_study  # noqa: E402
 
 
@@ -47,7 +50,9 @@ def registry(args) -> str:
 
 
 def distill_config(args) -> DistillConfig:
-    return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round)
+    student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
+    return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
+                   student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -64,7 +69,8 @@ def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
-                         env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts")},
+                         env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
+                                     "fidelity": args.fidelity},
                          distill=distill_config(args))
     t0, cpu0 = time.perf_counter(), cpu_seconds()
     result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
@@ -85,6 +91,7 @@ def run_heldout(args, run: Run) -> None:
             if task == "socialnav" and not args.socialnav:
                 continue
             rep = evaluate(EvalConfig(registry=reg, policy=str(run_dir), trials=args.trials, obstacles=obstacles,
+                                      max_steps=args.eval_max_steps or None,
                                       checkout_root=str(args.root / "checkouts")))
             (run_dir / f"eval_{task}.json").write_text(rep.to_json())
             metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
@@ -105,7 +112,8 @@ def run_study_bench(args, run: Run) -> None:
     config = StudyConfig(registry=reg, out_dir=str(args.root / f"study_{args.steps}{args.tag}"),
                          counts=[int(c) for c in args.counts.split(",")], seeds=len(args.seeds),
                          total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
-                         env_kwargs={"training": True}, stuck_steps=10, distill=distill_config(args))
+                         env_kwargs={"training": True, "fidelity": args.fidelity}, stuck_steps=10,
+                         distill=distill_config(args), eval_max_steps=args.eval_max_steps or None)
     rows = run_study(config)
     for n, agg in aggregate(rows).items():
         run.record_all(f"{n} training scenes", {k: agg[k] for k in agg if k != "seeds"}, "",
@@ -122,8 +130,12 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
     ap.add_argument("--steps-per-round", type=int, default=4000)
-    ap.add_argument("--updates-per-round", type=int, default=1500)
-    ap.add_argument("--envs", type=int, default=4)
+    ap.add_argument("--updates-per-round", type=int, default=800)
+    ap.add_argument("--envs", type=int, default=8)
+    ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
+    ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
+    ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
+    ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)
     ap.add_argument("--socialnav", action="store_true", help="heldout: also evaluate with pedestrians")
     ap.add_argument("--counts", default="1,5,15,25,30", help="study: training-scene counts")
@@ -133,8 +145,8 @@ def main() -> None:
     add_run_args(ap)
     args = ap.parse_args()
     if args.quick:
-        args.streets, args.seeds, args.steps, args.steps_per_round = 6, [0], 2000, 1000
-        args.updates_per_round, args.trials = 100, 5
+        args.streets, args.seeds, args.steps, args.steps_per_round = 6, [0], 400, 200
+        args.updates_per_round, args.trials, args.envs, args.eval_max_steps = 20, 2, 2, 100
     with Run("distill", args) as run:
         {"heldout": run_heldout, "study": run_study_bench}[args.what](args, run)
 
