@@ -180,6 +180,21 @@ def test_gc_never_deletes_a_live_writers_temp_file(tmp_path):
     assert reg.gc(grace_s=0) == [f"tmp/{live.name}"]  # its writer is gone now
 
 
+def test_blobs_left_in_the_trash_by_a_killed_gc_come_back(tmp_path):
+    reg = Registry(tmp_path / "reg")
+    rec = reg.add(make_bundle(tmp_path / "a", "a"))
+    sha = rec.artifact("splats.ply").sha256
+    # a gc killed between moving a blob aside and re-checking it
+    subprocess.run([sys.executable, "-c", "import sys; from vid2sim.registry.store import Registry; "
+                    "Registry(sys.argv[1]).blobs.trash(sys.argv[2])", reg.root, sha], check=True, env=_env(),
+                   timeout=120)
+    problems = reg.verify()
+    assert len(problems) == 1 and sha in problems[0] and "blobs/trash" in problems[0]
+    assert reg.gc(grace_s=0) == []  # puts it back, deletes nothing
+    assert reg.verify() == [] and reg.blobs.trashed() == []
+    assert (reg.checkout("a", dest=tmp_path / "co") / "splats.ply").is_file()
+
+
 def _shas(bundle: str) -> set[str]:
     from vid2sim.registry import validate_bundle
     from vid2sim.registry.blobs import sha256_file

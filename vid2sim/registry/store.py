@@ -55,6 +55,7 @@ GC_GRACE_S = 3600.0
 # kept at least this long whatever the grace period: the writer may still be running
 UNKNOWN_OWNER_GRACE_S = 3600.0
 _IN_FLIGHT: set[str] = set()  # intents of adds running in this process (process_state "self")
+_TRASHING: set[str] = set()  # trash files a gc running in this process has not decided on yet
 
 
 @dataclass(frozen=True)
@@ -390,12 +391,17 @@ class Registry:
                 users.setdefault(a["sha256"], []).append(f"{r['scene_id']}@{r['version']}:{a['name']}")
                 sizes[a["sha256"]] = a["size"]
         problems = []
+        trashed: Optional[set[str]] = None
         for sha, who in sorted(users.items()):
             where = ", ".join(who[:3]) + (f" (+{len(who) - 3} more)" if len(who) > 3 else "")
             try:
                 got, size = self.blobs.rehash(sha)
             except (FileNotFoundError, OSError):
-                problems.append((f"missing blob {sha} for {where}", sha))
+                if trashed is None:
+                    trashed = {t.sha256 for t in self.blobs.trashed()}
+                hint = (" (a copy waits in blobs/trash/: a gc was interrupted or is running; the next "
+                        "`vid2sim registry gc` puts it back)" if sha in trashed else "")
+                problems.append((f"missing blob {sha} for {where}{hint}", sha))
                 continue
             if got != sha or size != sizes[sha]:
                 problems.append((f"corrupt blob {sha} (content hashes to {got}, {size} bytes) for {where}", sha))
@@ -498,18 +504,31 @@ class Registry:
         temps = [b for b in listing if b.is_temp and self._stale_temp(b.sha256, b.mtime, start, grace_s)]
         if dry_run:
             return sorted(cands) + [f"tmp/{b.sha256}" for b in temps]
-        trashed = [t for t in (self.blobs.trash(sha) for sha in sorted(cands)) if t is not None]
         gone: set[str] = set()
-        if trashed:  # (4) what started to need them after (1)-(3)
-            guarded |= self._guarded(self.blobs.intents(), start, grace_s)
-            refs |= _refs(self.manifest.read(check=False)[1]) if self.manifest.exists() else set()
-            for t in trashed:
+        pending: list = []
+        try:
+            for sha in sorted(cands):
+                t = self.blobs.trash(sha)
+                if t is not None:
+                    pending.append(t)
+                    _TRASHING.add(t.name)
+            if pending:  # (4) what started to need them after (1)-(3)
+                guarded |= self._guarded(self.blobs.intents(), start, grace_s)
+                refs |= _refs(self.manifest.read(check=False)[1]) if self.manifest.exists() else set()
+            while pending:
+                t = pending[0]
                 touched = t.mtime is not None and t.mtime != cands[t.sha256]
                 if touched or t.sha256 in guarded or t.sha256 in refs:
                     self.blobs.restore(t)
                 else:
                     self.blobs.purge(t)
                     gone.add(t.sha256)
+                pending.pop(0)
+                _TRASHING.discard(t.name)
+        finally:
+            for t in pending:  # interrupted (an error, Ctrl-C): undecided blobs go back
+                self.blobs.restore(t)
+                _TRASHING.discard(t.name)
         for b in temps:
             if not temp_in_use(b.sha256):  # (re-checked: the writer may be this process)
                 self.blobs.delete(b)
@@ -553,7 +572,8 @@ class Registry:
     def _recover_trash(self) -> None:
         """Put back blobs a gc that is no longer running left in the trash (it was killed mid-way)."""
         for t in self.blobs.trashed():
-            if process_state(*name_owner(t.name[65:])) not in ("alive", "self"):
+            state = process_state(*name_owner(t.name[65:]))
+            if state != "alive" and not (state == "self" and t.name in _TRASHING):
                 self.blobs.restore(t)
 
     def compact(self, vacuum_hours: Optional[int] = None, dry_run: bool = False) -> dict:
