@@ -112,6 +112,7 @@ def test_same_seed_same_episode(registry):
 
 
 def test_fast_fidelity_defaults_shared_set_and_agreement(registry):
+    simready._CACHE.clear()  # made here (another test in this process may have made the same scene's set)
     fast, exact = make(registry, training=False, fidelity="fast"), make(registry, training=False)
     assert make(registry).unwrapped.config.render_fidelity == "fast"  # training default
     assert exact.unwrapped.config.render_fidelity == "exact"  # evaluation default
