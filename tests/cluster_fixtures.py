@@ -136,6 +136,7 @@ def ray_env(token: str, scratch: Path, extra: dict[str, str]) -> dict[str, str]:
     env = dict(os.environ)
     env.update(extra)
     env.update({"RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": token, "VID2SIM_SCRATCH": str(scratch),
+                "VID2SIM_CHECKOUTS": str(scratch / "checkouts"),  # the envs' scene checkouts stay on the node
                 "PYTHONPATH": os.pathsep.join([str(PROJECT_ROOT), str(PROJECT_ROOT / "tests")]),
                 "RAY_USAGE_STATS_ENABLED": "0",
                 "OMP_NUM_THREADS": "1"})

@@ -20,6 +20,7 @@ import numpy as np
 import ray
 import torch
 
+from vid2sim.envs.config import EpisodeConfig
 from vid2sim.factory.runtime.object_store import ObjectStore
 from vid2sim.factory.runtime.staging import scratch_root
 from vid2sim.formats.walkable import load_walkable
@@ -58,7 +59,9 @@ def distill_rounds(registry_uri: str, scene_id: str, run_dir: Path, rounds: int 
     small = StudentConfig(channels=(4, 8, 8, 8), frame_dim=16, vector_dim=8, hidden=32)
     config = TrainConfig(run_dir=str(run_dir), total_steps=rounds * 60, registry=registry_uri, scene_ids=[scene_id],
                          n_envs=2, n_actors=2, method="distill", stuck_steps=10,
-                         env_kwargs={"training": True, "fidelity": "exact", "checkout_root": None},
+                         env_kwargs={"training": True, "fidelity": "exact", "checkout_root": None,
+                                     # the 2-s clip's walk is ~2.8 m: shorter episodes than the paper's 10-30 m
+                                     "episode": EpisodeConfig(geodesic_range=(1.0, 2.5), min_geodesic=1.0)},
                          distill=DistillConfig(steps_per_round=60, updates_per_round=20, batch_size=16,
                                                train_max_steps=40, student=small))
     env = RayVecEnv(env_specs(config), RayVecEnvConfig(n_actors=2, num_cpus_per_actor=0.5,
