@@ -8,8 +8,6 @@ on a good scene starts a normal episode.
 
 from __future__ import annotations
 
-import json
-import shutil
 
 import gymnasium
 import numpy as np
@@ -17,10 +15,10 @@ import pytest
 import trimesh
 
 import vid2sim.envs  # noqa: F401  (registers the env ids)
+from tests.street_bundles import renamed_copy, street_bundle
 from vid2sim.envs.config import FastRenderConfig, RewardConfig
 from vid2sim.envs.nav_env import EpisodeEndedError, NavEnv, ResetNeededError
 from vid2sim.envs.scenes import SceneError
-from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
 from vid2sim.registry import Registry
 
 GOOD, BLOCKED = "synthetic-street-s11", "blocked-street"
@@ -32,10 +30,7 @@ def registry(tmp_path_factory):
     """The synthetic street's GT bundle, and a copy whose collision mesh has a slab through the
     robot's height band over the whole walkable map (every start touches it)."""
     root = tmp_path_factory.mktemp("envs_contract")
-    conf = preset("test", seed=11)
-    scene = generate_street(conf)
-    clip = render_video(scene, conf, root / "clip")
-    bundle = write_ground_truth_bundle(scene, clip, root / "bundle", GTBundleConfig(n_splats=20_000))
+    bundle = street_bundle(root)
     reg = Registry(root / "registry")
     reg.add(bundle)
     reg.add(_blocked_copy(bundle, root / "blocked"))
@@ -43,10 +38,7 @@ def registry(tmp_path_factory):
 
 
 def _blocked_copy(bundle, out):
-    shutil.copytree(bundle, out)
-    meta = json.loads((out / "scene.json").read_text())
-    meta["scene_id"] = BLOCKED
-    (out / "scene.json").write_text(json.dumps(meta))
+    renamed_copy(bundle, out, BLOCKED)
     with np.load(out / "walkable.npz") as z:
         shape, origin, res = z["grid"].shape, z["origin"], float(z["resolution"])
     extent = np.array(shape[::-1], float) * res

@@ -6,8 +6,6 @@ collision mesh stopping the robot, the map-size refusal and the scripted expert.
 
 from __future__ import annotations
 
-import json
-import shutil
 
 import gymnasium
 import numpy as np
@@ -18,13 +16,13 @@ from gymnasium.utils.env_checker import check_env as gym_check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
 import vid2sim.envs  # noqa: F401  (registers the env ids)
+from tests.street_bundles import renamed_copy, street_bundle
 from vid2sim.envs import simready
 from vid2sim.envs.config import FastRenderConfig, RobotConfig
 from vid2sim.envs.expert import ExpertConfig, PurePursuitExpert, _arc_on_map, _safe_steer
 from vid2sim.envs.nav_env import InvalidActionError, NavEnv
 from vid2sim.envs.physics import PhysicsWorld, RobotState
 from vid2sim.envs.scenes import SceneError, load_scene
-from vid2sim.factory.synthetic import GTBundleConfig, generate_street, preset, render_video, write_ground_truth_bundle
 from vid2sim.registry import Registry
 
 SCENE = "synthetic-street-s11"
@@ -34,10 +32,7 @@ SCENE = "synthetic-street-s11"
 def registry(tmp_path_factory):
     """GT bundle of a 1 s synthetic street (20k splats) + a copy with a tiny walkable map."""
     root = tmp_path_factory.mktemp("envs")
-    conf = preset("test", seed=11)
-    scene = generate_street(conf)
-    clip = render_video(scene, conf, root / "clip")
-    bundle = write_ground_truth_bundle(scene, clip, root / "bundle", GTBundleConfig(n_splats=20_000))
+    bundle = street_bundle(root)
     reg = Registry(root / "registry")
     reg.add(bundle)
     reg.add(_tiny_copy(bundle, root / "tiny"))
@@ -45,10 +40,7 @@ def registry(tmp_path_factory):
 
 
 def _tiny_copy(bundle, out):
-    shutil.copytree(bundle, out)
-    meta = json.loads((out / "scene.json").read_text())
-    meta["scene_id"] = "tiny-street"
-    (out / "scene.json").write_text(json.dumps(meta))
+    renamed_copy(bundle, out, "tiny-street")
     with np.load(out / "walkable.npz") as z:
         grid, origin, res = z["grid"].copy(), z["origin"], z["resolution"]
     rows, cols = np.nonzero(grid)
