@@ -174,3 +174,18 @@ def test_collection_on_ray_actors(street_registry, tmp_path):
     finally:
         ray.shutdown()
     assert result.num_timesteps == 60 and result.history[0]["labels"] > 0
+
+
+def test_resume_refuses_other_options_and_missing_runs(distilled, tmp_path):
+    from typer.testing import CliRunner
+
+    from vid2sim.cli.app import app
+    run, _ = distilled
+    before = (run / "config.json").read_text()
+    result = CliRunner().invoke(app, ["train", "--registry", "x", "--run", str(run), "--resume", "--envs", "3",
+                                      "--set", "seed=2"])
+    assert result.exit_code == 2 and "--envs, --set refused with --resume" in result.output
+    assert (run / "config.json").read_text() == before
+    missing = tmp_path / "no-run"
+    result = CliRunner().invoke(app, ["train", "--registry", "x", "--run", str(missing), "--resume"])
+    assert result.exit_code == 2 and "not a run folder" in result.output and not missing.exists()

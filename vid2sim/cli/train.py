@@ -73,7 +73,23 @@ def _resumed_config(run_dir: str, steps: Optional[int]) -> TrainConfig:
     return config
 
 
+RESUME_FREE = {"registry", "run_dir", "steps", "resume", "ray_address", "num_cpus"}  # may be given with --resume
+
+
+def _refuse_changes_on_resume(ctx: typer.Context, run_dir: str) -> None:
+    """A resumed run keeps its recorded config: any other option given on the command line is refused."""
+    given = sorted(name for name in ctx.params if name not in RESUME_FREE
+                   and getattr(ctx.get_parameter_source(name), "name", "") == "COMMANDLINE")
+    if given:
+        opts = {p.name: p.opts[0] for p in ctx.command.params if getattr(p, "opts", None)}
+        flags = ", ".join(opts.get(name, name) for name in given)
+        typer.echo(f"error: {flags} refused with --resume: {run_dir} keeps its recorded config "
+                   "(config.json); only --steps may change", err=True)
+        raise typer.Exit(2)
+
+
 def train_command(
+    ctx: typer.Context,
     registry: str = typer.Option(..., "--registry", help="Registry root."),
     run_dir: str = typer.Option(..., "--run", help="Run folder (config, scenes, checkpoints, TensorBoard)."),
     method: str = typer.Option("sac", "--method", help="sac (paper preset) | distill (pixel student from the A* "
@@ -113,9 +129,7 @@ def train_command(
 ) -> None:
     """Train SAC (paper preset) or distil a pixel student from the A* teacher on a registry split's training scenes."""
     if resume:
-        if sets:
-            typer.echo(f"error: --set is refused with --resume: {run_dir} keeps its recorded config", err=True)
-            raise typer.Exit(2)
+        _refuse_changes_on_resume(ctx, run_dir)
         config = _resumed_config(run_dir, steps)
     else:
         env_kwargs: dict = {"variant": variant}
