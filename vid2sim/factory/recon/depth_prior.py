@@ -33,7 +33,7 @@ class DepthPrior:
     confidence: np.ndarray  # [H, W] bool
 
 
-# ----------------------------------------------------------------------------- helper functions
+# ----------------------------------------------------------------------------- projection, depth range and view choice
 
 def project(points: np.ndarray, view: View) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """World points [P, 3] -> (pixel coords [P, 2] (x, y; pixel j covers [j, j + 1)), camera z [P],

@@ -85,8 +85,8 @@ def sample_splats(scene: StreetScene, conf: GTBundleConfig) -> dict[str, np.ndar
     rgb = shade(albedo(p, n, scene.face_material[fid], scene.face_color[fid], scene.face_instance[fid],
                        np.full(len(p), spacing), c), n, c)
     # local frame: columns (t1, t2, n) -> quaternion (w, x, y, z)
-    helper = np.where(np.abs(n[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
-    t1 = np.cross(helper, n)
+    axis = np.where(np.abs(n[:, 2:3]) < 0.9, [[0.0, 0.0, 1.0]], [[1.0, 0.0, 0.0]])
+    t1 = np.cross(axis, n)
     t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
     t2 = np.cross(n, t1)
     xyzw = Rotation.from_matrix(np.stack([t1, t2, n], axis=2)).as_quat()

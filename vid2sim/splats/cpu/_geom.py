@@ -1,6 +1,6 @@
 """Per-splat projection math (docs/splat_renderer.md steps 3-8) and its hand-written VJP.
 
-Scalar numba helper functions in float64; 3x3 matrices are row-major 9-tuples.
+Scalar numba device functions in float64; 3x3 matrices are row-major 9-tuples.
 """
 
 from __future__ import annotations

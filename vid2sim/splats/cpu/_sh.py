@@ -1,4 +1,4 @@
-"""Real SH (3DGS constants) evaluation and its vector-Jacobian product, as numba helper functions.
+"""Real SH (3DGS constants) evaluation and its vector-Jacobian product, as numba device functions.
 
 Colours are evaluated per splat and channel; `sh` rows are [K, 3] float32.
 """
