@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 from pathlib import Path
 
 import pytest
@@ -10,6 +9,7 @@ import yaml
 from ingest_media import make_video
 from registry_fixtures import make_bundle
 
+from tests.http_folder import serve_folder
 from vid2sim.factory.ingest.clip_list import load_manifest
 from vid2sim.factory.runtime.pipeline import PipelineConfig, plan_jobs
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -88,7 +88,7 @@ def test_secrets_in_source_url_are_never_stored(tmp_path):
     assert redact_uri(url.format(port=80)) == "http://127.0.0.1:80/clip.mp4"  # an allow-list: v goes too
     (tmp_path / "srv").mkdir()
     video = make_video(tmp_path / "srv" / "clip.mp4", n=10, fps=10)
-    with _http_server(video.parent) as port:
+    with serve_folder(video.parent) as port:
         src = resolve_source(url.format(port=port), cache_dir=tmp_path / "cache")
         with pytest.raises(StageError) as e:
             resolve_source(url.format(port=port).replace("clip.mp4", "gone.mp4"), cache_dir=tmp_path / "cache")
@@ -112,19 +112,3 @@ def test_num_cpus_zero_is_refused_at_once():
     assert r.exit_code == 2 and "--num-cpus" in r.output
 
 
-@contextlib.contextmanager
-def _http_server(folder: Path):
-    import functools
-    import http.server
-    import threading
-
-    handler = functools.partial(http.server.SimpleHTTPRequestHandler, directory=str(folder))
-    handler.log_message = lambda *a: None
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    t = threading.Thread(target=srv.serve_forever, daemon=True)
-    t.start()
-    try:
-        yield srv.server_address[1]
-    finally:
-        srv.shutdown()
-        srv.server_close()

@@ -4,18 +4,14 @@ registry, an error message or a log line. Real HTTP server, real cache and regis
 
 from __future__ import annotations
 
-import contextlib
-import functools
-import http.server
 import json
 import logging
-import threading
-from pathlib import Path
 
 import pytest
 from ingest_media import make_video
 from registry_fixtures import make_bundle
 
+from tests.http_folder import QuietHandler, serve_folder
 from vid2sim.factory.ingest.clip_list import parse_row
 from vid2sim.factory.ingest.sources import redact_uri, resolve_source, uri_name
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -73,27 +69,12 @@ def test_scrub_removes_secrets_from_backend_messages():
     assert "CLIENTSECRET" not in out and "REFRESHTOK" not in out and "h.example/v/clip.mp4" in out
 
 
-class _Handler(http.server.SimpleHTTPRequestHandler):
-    def log_message(self, *a):
-        pass
-
+class _Handler(QuietHandler):
     def do_GET(self):  # noqa: N802 - http.server's name
         if self.path.startswith("/broken"):
             self.send_error(500, f"backend failure for {self.path}")  # echoes the query
             return
         super().do_GET()
-
-
-@contextlib.contextmanager
-def _server(folder: Path):
-    srv = http.server.ThreadingHTTPServer(("127.0.0.1", 0), functools.partial(_Handler, directory=str(folder)))
-    t = threading.Thread(target=srv.serve_forever, daemon=True)
-    t.start()
-    try:
-        yield srv.server_address[1]
-    finally:
-        srv.shutdown()
-        srv.server_close()
 
 
 def _secret_free(text: str) -> bool:
@@ -107,7 +88,7 @@ def test_fetch_stores_logs_and_prints_no_secret(tmp_path, caplog):
     tail = ("?client_secret=CLIENTSECRET&refresh_token=REFRESHTOK&sas_token=SASTOKEN&sig=SIGVALUE"
             "#access_token=FRAGTOKEN")
     caplog.set_level(logging.DEBUG)
-    with _server(video.parent) as port:
+    with serve_folder(video.parent, _Handler) as port:
         url = f"http://alice:hunter2@127.0.0.1:{port}/clip.mp4{tail}"
         src = resolve_source(url, cache_dir=cache)
         again = resolve_source(url, cache_dir=cache)  # from the cache
