@@ -140,9 +140,12 @@ def load_policy(policy: str, seed: int) -> tuple[Policy, Callable[[gym.Env], Non
     path = policy_path(policy)
     if path.suffix == ".pt":
         student = load_student(path)
+        checked: set[int] = set()  # envs whose observation space was compared once
 
         def act_student(env: gym.Env, obs: dict) -> np.ndarray:
-            check_observation(env, {"image": student.image_shape, "vector": student.vector_shape}, policy)
+            if id(env) not in checked:
+                check_observation(env, {"image": student.image_shape, "vector": student.vector_shape}, policy)
+                checked.add(id(env))
             with torch.no_grad():
                 return student(torch.from_numpy(obs["image"][None]), torch.from_numpy(obs["vector"][None]))[0].numpy()
         return act_student, (lambda env: None)
