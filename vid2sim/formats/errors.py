@@ -14,3 +14,7 @@ class BundleError(ValueError):
     def __init__(self, path: PathLike, reason: str) -> None:
         self.path, self.reason = str(path), reason
         super().__init__(f"{self.path}: {reason}")
+
+
+class BundleTooLarge(BundleError):
+    """A bundle file declares more data than the format's size cap allows (checked before reading it)."""

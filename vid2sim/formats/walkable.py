@@ -5,20 +5,25 @@ File keys: grid uint8 [H, W] (1 = walkable, 0 = blocked), origin float64 [2], re
 (r, c) covers x in [ox + c res, ox + (c + 1) res), y in [oy + r res, oy + (r + 1) res), where
 origin = (ox, oy) is the lower-left CORNER of cell [0, 0] (its centre is origin + res / 2).
 `load_walkable(path) -> WalkableGrid` is the one reader; `WalkableGrid.save(path)` the writer.
+The reader checks each array's declared shape before decompressing it: a grid of more than
+MAX_WALKABLE_CELLS cells (8192 x 8192: 205 m square at the envs' 2.5 cm) is `BundleTooLarge`.
 """
 
 from __future__ import annotations
 
 import math
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from vid2sim.formats.errors import BundleError, PathLike
+from vid2sim.formats.errors import BundleError, BundleTooLarge, PathLike
 
 WALKABLE_NPZ = "walkable.npz"
 NPZ_KEYS = ("grid", "origin", "resolution")
+MAX_WALKABLE_CELLS = 8192 * 8192  # grid cells a walkable.npz may declare
+MAX_SMALL_VALUES = 16  # elements `origin` / `resolution` may declare (they hold 2 and 1)
 
 
 @dataclass
@@ -73,7 +78,32 @@ class WalkableGrid:
         return path
 
 
+def _declared_shape(zf: zipfile.ZipFile, member: str) -> tuple[int, ...]:
+    """The shape an .npy member of an npz declares in its header (nothing decompressed beyond it)."""
+    with zf.open(member) as f:
+        major, _ = np.lib.format.read_magic(f)
+        read = np.lib.format.read_array_header_1_0 if major == 1 else np.lib.format.read_array_header_2_0
+        shape, _, _ = read(f)
+    return tuple(int(n) for n in shape)
+
+
+def check_declared_sizes(path: Path) -> None:
+    """Raise BundleTooLarge when an array of the npz declares more elements than its cap."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            names = set(zf.namelist())
+            shapes = {k: _declared_shape(zf, f"{k}.npy") for k in NPZ_KEYS if f"{k}.npy" in names}
+    except Exception as e:
+        raise BundleError(path, f"unreadable npz ({type(e).__name__}: {e})") from None
+    for key, shape in shapes.items():
+        cap = MAX_WALKABLE_CELLS if key == "grid" else MAX_SMALL_VALUES
+        count = math.prod(shape)
+        if count > cap:
+            raise BundleTooLarge(path, f"{key} declares {count:,} elements {list(shape)}, over the cap of {cap:,}")
+
+
 def _read_npz(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    check_declared_sizes(path)
     try:
         with np.load(path, allow_pickle=False) as z:
             missing = [k for k in NPZ_KEYS if k not in z.files]
