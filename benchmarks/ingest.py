@@ -24,7 +24,7 @@ sys.path.insert(0, str(ROOT))
 
 from common import Run, add_run_args  # noqa: E402  (benchmarks/common.py)
 from vid2sim.factory.ingest import decode, masks  # noqa: E402
-from vid2sim.factory.ingest.privacy import FaceBlurrer  # noqa: E402
+from vid2sim.factory.ingest.privacy import Anonymiser  # noqa: E402
 
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
@@ -77,7 +77,7 @@ def bench(args: argparse.Namespace) -> None:
 
     samples, _ = timed("  read + sample (PyAV)", lambda: decode.sample_video(video, conf, None))
     timed("  sharpness + duplicate flow", lambda: decode.filter_samples(samples, conf))
-    blur = FaceBlurrer(conf.faces)
+    blur = Anonymiser(conf.faces, conf.plates)
     timed("  face detection, 10 frames, 1 proc", lambda: [blur(s.image) for s in samples[:10]])
     d = timed("decode stage (total)", lambda: decode.main(conf, video, out / "decode"))
     m = timed("masks stage (total)", lambda: masks.main(masks.MasksConfig(), d, out / "masks"))

@@ -14,7 +14,7 @@ import pytest
 
 from ingest_media import make_video, panning_frames, texture, write_video
 from vid2sim.factory.ingest import decode
-from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConfig
+from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
 
 CONF = decode.DecodeConfig(workers=1)
@@ -47,7 +47,7 @@ def test_decode_samples_filters_and_writes(tmp_path: Path) -> None:
     assert clip["counts"]["sampled"] == 20 and clip["counts"]["kept"] == 17
     assert clip["counts"]["dropped_blur"] == 1 and clip["counts"]["dropped_duplicate"] == 2
     assert clip["size"] == [160, 120] and clip["source_fps"] == pytest.approx(20.0)
-    assert clip["sha256"] and clip["face_detector"] == "dlib_hog"
+    assert clip["sha256"] and clip["face_detector"] == "centerface"
     assert load_record(out).summary["kept"] == 17
 
 
@@ -92,12 +92,12 @@ def test_faces_blurred_before_writing(tmp_path: Path) -> None:
     assert clip["kind"] == "images" and clip["counts"]["frames_with_faces"] == 12
 
 
-def test_face_blurrer_leaves_faceless_frames(tmp_path: Path) -> None:
+def test_anonymiser_leaves_faceless_frames(tmp_path: Path) -> None:
     img = texture(120, 160)
-    out, boxes = FaceBlurrer(FaceConfig())(img)
-    assert len(boxes) == 0 and np.array_equal(out, img)
+    out, faces, plates = Anonymiser(FaceConfig())(img)
+    assert len(faces) == 0 and len(plates) == 0 and np.array_equal(out, img)
     with pytest.raises(StageError) as e:
-        FaceBlurrer(FaceConfig(detector="yunet", model_path=str(tmp_path / "missing.onnx")))
+        Anonymiser(FaceConfig(detector="yunet", model_path=str(tmp_path / "missing.onnx")))
     assert e.value.reason == "no_face_detector"
 
 

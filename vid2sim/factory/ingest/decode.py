@@ -2,13 +2,13 @@
 
 Reads: a `Source` (see sources.py) and an optional window (start, end) in seconds.
 Writes into `out_dir`:
-  images/NNNNNN.jpg  kept frames, resized so the long side <= max_side, faces blurred
+  images/NNNNNN.jpg  kept frames, resized so the long side <= max_side, faces and plates blurred
                      IN MEMORY before the write (raw frames never touch the disk)
   frames.parquet     one row per sampled frame: index (output index, null if dropped),
                      image, source_frame, timestamp, sharpness, motion, level, kept,
-                     reason (null | black | blur | duplicate), faces
+                     reason (null | black | blur | duplicate), faces, plates
   clip.json          source uri + sha256, window, source fps/size, sample fps, size,
-                     counts, face-detector facts, config
+                     counts, anonymiser (detectors and settings), config
   stage.json         the done-marker (runtime/stage_cache.py)
 
 Filters (defaults, see DecodeConfig):
@@ -38,7 +38,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from vid2sim.factory.ingest.privacy import FaceBlurrer, FaceConfig
+from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
 from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_video
@@ -51,7 +51,7 @@ STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 class DecodeOutputs:
     """This stage's output artifacts, as paths relative to its stage folder (the stage contract)."""
 
-    images: str = "images"  # NNNNNN.jpg, faces blurred
+    images: str = "images"  # NNNNNN.jpg, faces and plates blurred
     frames: str = "frames.parquet"  # one row per sampled frame
     clip: str = "clip.json"
 
@@ -74,7 +74,8 @@ class DecodeConfig:
     jpeg_quality: int = 95  # JPEG quality (0-100) of the written frames
     image_fps: float = 1.0  # nominal rate for image-folder timestamps (index / image_fps)
     faces: FaceConfig = field(default_factory=FaceConfig)  # face detection and blurring (anonymisation)
-    workers: int = 2  # processes for face detection + JPEG writing (dlib is single-threaded)
+    plates: PlateConfig = field(default_factory=PlateConfig)  # licence-plate detection and blurring
+    workers: int = 2  # processes for anonymisation + JPEG writing (one detector thread each)
 
 
 PRESETS = {
@@ -212,7 +213,7 @@ def _mark_duplicates(sharp: list[Sample], conf: DecodeConfig) -> None:
 
 
 # --------------------------------------------------------------------------- writing
-def _frames_table(samples: list[Sample], faces: dict[int, int]) -> pa.Table:
+def _frames_table(samples: list[Sample], found: dict[int, tuple[int, int]]) -> pa.Table:
     kept = [s.reason is None for s in samples]
     out_idx, k = [], 0
     for keep in kept:
@@ -228,38 +229,40 @@ def _frames_table(samples: list[Sample], faces: dict[int, int]) -> pa.Table:
         "level": pa.array([s.level for s in samples], pa.float64()),
         "kept": pa.array(kept, pa.bool_()),
         "reason": pa.array([s.reason for s in samples], pa.string()),
-        "faces": pa.array([faces.get(i, 0) for i in range(len(samples))], pa.int32()),
+        "faces": pa.array([found.get(i, (0, 0))[0] for i in range(len(samples))], pa.int32()),
+        "plates": pa.array([found.get(i, (0, 0))[1] for i in range(len(samples))], pa.int32()),
     })
 
 
 _WORKER: dict = {}
 
 
-def _init_worker(face_conf: FaceConfig, quality: int) -> None:
-    _WORKER["blur"], _WORKER["quality"] = FaceBlurrer(face_conf), quality
+def _init_worker(face_conf: FaceConfig, plate_conf: PlateConfig, quality: int) -> None:
+    _WORKER["blur"], _WORKER["quality"] = Anonymiser(face_conf, plate_conf), quality
 
 
-def _blur_and_write(job: tuple[np.ndarray, str]) -> int:
-    """Worker: blur faces in memory, then write the JPEG; returns the number of faces."""
+def _blur_and_write(job: tuple[np.ndarray, str]) -> tuple[int, int]:
+    """Worker: blur faces and plates in memory, then write the JPEG; returns (faces, plates)."""
     img, path = job
-    img, boxes = _WORKER["blur"](img)
+    img, faces, plates = _WORKER["blur"](img)
     if not cv2.imwrite(path, img, [cv2.IMWRITE_JPEG_QUALITY, _WORKER["quality"]]):
         raise OSError(f"cannot write {path}")
-    return len(boxes)
+    return len(faces), len(plates)
 
 
-def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int, int]:
-    """Blur faces in memory and write kept frames (in `conf.workers` processes); faces per sample."""
+def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int, tuple[int, int]]:
+    """Anonymise in memory and write kept frames (in `conf.workers` processes); (faces, plates) per sample."""
     images = out_dir / OUTPUTS.images
     images.mkdir()
     kept = [i for i, s in enumerate(samples) if s.reason is None]
     jobs = [(samples[i].image, str(images / f"{k:06d}.jpg")) for k, i in enumerate(kept)]
     if conf.workers <= 1 or len(jobs) < 32:  # a process pool costs ~1-2 s to start
-        _init_worker(conf.faces, conf.jpeg_quality)
+        _init_worker(conf.faces, conf.plates, conf.jpeg_quality)
         counts = [_blur_and_write(j) for j in jobs]
     else:
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(conf.workers, ctx, _init_worker, (conf.faces, conf.jpeg_quality)) as pool:
+        init = (conf.faces, conf.plates, conf.jpeg_quality)
+        with ProcessPoolExecutor(conf.workers, ctx, _init_worker, init) as pool:
             counts = list(pool.map(_blur_and_write, jobs, chunksize=4))
     return dict(zip(kept, counts))
 
@@ -274,25 +277,26 @@ def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
     if is_done(out_dir, key):
         return out_dir
     with Timer() as timer:
-        blurrer = FaceBlurrer(conf.faces)  # fails early (nothing written) without a detector
+        blurrer = Anonymiser(conf.faces, conf.plates)  # fails early (nothing written) without a detector
         if src.kind == "video":
             samples, facts = sample_video(src.path, conf, window)
         else:
             samples, facts = sample_images(src.images(), conf)
         counts = filter_samples(samples, conf)
         fresh_dir(out_dir)
-        faces = _write(samples, conf, out_dir)
-        pq.write_table(_frames_table(samples, faces), out_dir / OUTPUTS.frames)
+        found = _write(samples, conf, out_dir)
+        pq.write_table(_frames_table(samples, found), out_dir / OUTPUTS.frames)
         kept = [s for s in samples if s.reason is None]
         h, w = kept[0].image.shape[:2]
-        counts["faces_blurred"] = int(sum(faces.values()))
-        counts["frames_with_faces"] = int(sum(v > 0 for v in faces.values()))
+        counts["faces_blurred"] = int(sum(f for f, _ in found.values()))
+        counts["frames_with_faces"] = int(sum(f > 0 for f, _ in found.values()))
+        counts["plates_blurred"] = int(sum(p for _, p in found.values()))
         clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
                 "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
-                **facts, "counts": counts, "face_detector": blurrer.name, "config": to_jsonable(conf)}
+                **facts, "counts": counts, **blurrer.record(), "config": to_jsonable(conf)}
         (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
     summary = {k: counts[k] for k in ("sampled", "kept", "dropped_black", "dropped_blur", "dropped_duplicate",
-                                      "faces_blurred")}
+                                      "faces_blurred", "plates_blurred")}
     mark_done(out_dir, STAGE, key, {**summary, "size": [w, h]}, timer.seconds)
     return out_dir
 
