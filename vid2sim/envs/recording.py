@@ -6,7 +6,8 @@ lower-left corner and `resolution` m/cell (defaults (0, 0) and 0.1), `robot_xy`,
 `path` (taken), `planned_path`, `goal`, `obstacles` [N, 2], `pedestrians` [P, 2]). The view is
 `env.render()` when it returns an image, else the newest frame of `obs["image"]`. One file per
 episode (`<prefix>-<k>.mp4`, OpenCV mp4v), one video frame per reset and per step, closed when
-the episode ends or the wrapper closes.
+the episode ends or the wrapper closes; beside it `<prefix>-<k>.trace.json`, the episode's steps
+for replay in the viewer (`vid2sim.formats.episode_trace`).
 
 Map colours: walkable light grey, blocked dark grey, planned path blue, path taken green,
 obstacles orange, pedestrians magenta, goal red, robot yellow with its heading.
@@ -20,6 +21,8 @@ from typing import Any, Optional, Protocol
 import cv2
 import gymnasium as gym
 import numpy as np
+
+from vid2sim.formats.episode_trace import EpisodeTrace, trace_path
 
 PANEL_H = 288  # px: height of both panels
 MAP_W = 512  # px: width of the map panel
@@ -146,6 +149,7 @@ class RecordEpisode(gym.Wrapper):
         self.paths: list[Path] = []
         self._writer: Optional[cv2.VideoWriter] = None
         self._map: Optional[TopdownMap] = None
+        self._trace: Optional[EpisodeTrace] = None
         self.frames_written = 0
 
     def reset(self, **kwargs):
@@ -158,21 +162,37 @@ class RecordEpisode(gym.Wrapper):
                      for k in ("planned_path", "robot_xy", "goal") if state.get(k) is not None]
             self._map = TopdownMap(state["grid"], state.get("origin", (0.0, 0.0)),
                                    state.get("resolution", 0.1), focus=np.concatenate(focus))
+            self._trace = self._new_trace(state, info)
             self._write(obs, state)
         return obs, info
 
     def step(self, action):
         obs, reward, terminated, truncated, info = self.env.step(action)
         if self._map is not None:
-            self._write(obs, self.env.unwrapped.topdown_state())
+            self._write(obs, self.env.unwrapped.topdown_state(), bool(info.get("collided", False)))
             if terminated or truncated:
+                self._trace.end = str(info.get("end", ""))
                 self._finish()
         return obs, reward, terminated, truncated, info
 
-    def _write(self, obs: Any, state: dict[str, Any]) -> None:
+    def _new_trace(self, state: dict[str, Any], info: dict) -> EpisodeTrace:
+        env = self.env.unwrapped
+        robot = getattr(getattr(env, "config", None), "robot", None)
+        size = {k: float(getattr(robot, k, d)) for k, d in (("length_m", 0.9), ("width_m", 0.6), ("height_m", 0.6))}
+        registry = getattr(env, "registry", None)
+        return EpisodeTrace(scene_id=str(info.get("scene_id", getattr(getattr(env, "episode", None), "scene_id", ""))),
+                            robot=size, goal=[float(v) for v in np.asarray(state["goal"]).reshape(-1)[:2]],
+                            planned_path=np.asarray(state.get("planned_path", np.zeros((0, 2))),
+                                                    np.float64).reshape(-1, 2).tolist(),
+                            fps=float(self.fps), registry=str(getattr(registry, "root", "")) or None)
+
+    def _write(self, obs: Any, state: dict[str, Any], collided: bool = False) -> None:
         view = self.env.render() if getattr(self.env, "render_mode", None) == "rgb_array" else None
         view = view if isinstance(view, np.ndarray) and view.ndim == 3 else _view_from_obs(obs)
         frame = side_by_side(view, self._map.draw(state))
+        self._trace.append(state["robot_xy"], state["robot_yaw"], collided, state.get("obstacles", np.zeros((0, 2))),
+                           state.get("pedestrians", np.zeros((0, 2))))
+        self._trace.view_width_px = frame.shape[1] - self._map.base.shape[1]
         if self._writer is None:
             path = self.folder / f"{self.name_prefix}-{self.episode}.mp4"
             self._writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps,
@@ -187,7 +207,10 @@ class RecordEpisode(gym.Wrapper):
     def _finish(self) -> None:
         if self._writer is not None:
             self._writer.release()
-        self._writer, self._map = None, None
+            if self._trace is not None:
+                self._trace.video = self.paths[-1].name
+                self._trace.write(trace_path(self.paths[-1]))
+        self._writer, self._map, self._trace = None, None, None
 
     def close(self) -> None:
         self._finish()

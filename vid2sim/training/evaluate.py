@@ -28,6 +28,7 @@ from stable_baselines3 import SAC
 import vid2sim.envs  # noqa: F401  (registers the env ids)
 import vid2sim.training.privileged  # noqa: F401  (registers the privileged-observation env id)
 from vid2sim.envs.config import EnvConfig, EpisodeConfig
+from vid2sim.formats.episode_trace import read_trace, trace_path
 from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
 from vid2sim.envs.obstacles import ObstacleConfig
@@ -188,12 +189,18 @@ def with_recording(env: gym.Env, config: EvalConfig) -> gym.Env:
 
 
 def name_videos(paths: list[Path], scenes: list[str], trials: int) -> list[str]:
-    """Renames RecordEpisode's `episode-K.mp4` (K counts all trials) to `SCENE-trialT.mp4`."""
+    """Renames RecordEpisode's `episode-K.mp4` (K counts all trials) to `SCENE-trialT.mp4`, and its
+    trace to `SCENE-trialT.trace.json`."""
     out = []
     for p in paths:
         k = int(p.stem.rsplit("-", 1)[1])
         target = p.with_name(f"{scenes[k // trials]}-trial{k % trials}.mp4")
         p.replace(target)
+        if trace_path(p).is_file():  # the episode's trace goes with its video
+            trace = read_trace(trace_path(p))
+            trace.video = target.name
+            trace.write(trace_path(target))
+            trace_path(p).unlink()
         out.append(str(target))
     return out
 
