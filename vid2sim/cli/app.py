@@ -36,6 +36,8 @@ def _register_subapps() -> None:
     app.command("study")(study_command)
     from vid2sim.cli.envs import app as envs_app
     app.add_typer(envs_app, name="envs")
+    from vid2sim.cli.view import view_command
+    app.command("view")(view_command)
 
 
 @app.command()
