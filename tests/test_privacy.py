@@ -1,0 +1,142 @@
+"""Anonymiser on composited real faces (scikit-image's LFW subset) and rendered plates.
+
+Every stored image downstream of the factory (splat training images, previews, episode videos)
+is made from the decode stage's `images/`; these tests check that those are anonymised, that
+no other module reads source pixels, and that the detectors and settings reach scene.json.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from conftest import shared_data_path
+from ingest_media import texture
+from vid2sim.factory.ingest import decode
+from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig, blur_mask
+from vid2sim.factory.ingest.privacy_probe import FacePose, composite, coverage, false_positives
+from vid2sim.factory.runtime.stage_cache import StageError
+
+POSES = [FacePose(14), FacePose(20, roll_deg=10), FacePose(28, yaw=0.3), FacePose(36, mirror=True, motion_px=2),
+         FacePose(48, roll_deg=-20), FacePose(64, yaw=0.15)]
+
+
+def detail(img: np.ndarray, box: np.ndarray) -> float:
+    """Laplacian variance (fine detail) inside a box."""
+    x0, y0, x1, y1 = np.asarray(box).astype(int)
+    return float(cv2.Laplacian(cv2.cvtColor(img[y0:y1, x0:x1], cv2.COLOR_BGR2GRAY), cv2.CV_32F).var())
+
+
+def inner(box: np.ndarray) -> np.ndarray:
+    """The middle of a plate box (its characters, without the plate's outline)."""
+    x0, y0, x1, y1 = box
+    return np.array([x0 + 0.1 * (x1 - x0), y0 + 0.3 * (y1 - y0), x1 - 0.1 * (x1 - x0), y1 - 0.2 * (y1 - y0)])
+
+
+@pytest.fixture(scope="module")
+def street() -> np.ndarray:
+    """A synthetic street render (BGR, 640 x 360)."""
+    from vid2sim.factory.synthetic import StreetRenderer, generate_street, preset
+    from vid2sim.factory.synthetic.trajectory import walking_poses
+
+    conf = preset("demo", duration_s=1.0, width=640, height=360)
+    return StreetRenderer(generate_street(conf), conf).render(walking_poses(conf)[1][5])["rgb"][:, :, ::-1].copy()
+
+
+def check_anonymised(frame: np.ndarray, seed: int) -> None:
+    c = composite(frame, POSES, [110, 140], np.random.default_rng(seed))
+    assert len(c.faces) == len(POSES) and len(c.plates) == 2
+    out, faces, plates = Anonymiser()(c.image)
+    cov = coverage(blur_mask(out.shape[:2], faces, 0.3), c.faces)
+    assert (cov >= 0.8).all(), f"faces not covered: {cov}"
+    assert (coverage(blur_mask(out.shape[:2], plates, 0.25), c.plates) >= 0.6).all()
+    assert false_positives(faces, c.people) == 0
+    for box in [*c.faces, *map(inner, c.plates)]:
+        assert detail(out, box) < 0.3 * detail(c.image, box)  # detail is gone, not just boxed
+
+
+def test_faces_and_plates_found_and_blurred_on_texture() -> None:
+    check_anonymised(texture(360, 640, seed=4), seed=0)
+
+
+@pytest.mark.slow
+def test_faces_and_plates_found_and_blurred_on_a_synthetic_street(street: np.ndarray) -> None:
+    check_anonymised(street, seed=0)
+
+
+@pytest.mark.shared_data
+def test_faces_and_plates_found_and_blurred_on_a_real_street() -> None:
+    frame = cv2.imread(str(sorted((shared_data_path("opensfm_lund_street") / "images").glob("*.jpg"))[3]))
+    check_anonymised(cv2.resize(frame, (640, 480), interpolation=cv2.INTER_AREA), seed=1)
+
+
+@pytest.mark.slow
+def test_empty_street_is_left_alone(street: np.ndarray) -> None:
+    out, faces, plates = Anonymiser()(street)
+    assert len(faces) == 0 and blur_mask(street.shape[:2], plates).mean() < 0.02
+
+
+def test_missing_models_are_named_errors(tmp_path: Path) -> None:
+    for conf in (FaceConfig(model_path=str(tmp_path / "missing.onnx")),
+                 FaceConfig(detector="yunet", model_path=str(tmp_path / "missing.onnx")),
+                 FaceConfig(detector="no_such_detector")):
+        with pytest.raises(StageError) as e:
+            Anonymiser(conf)
+        assert e.value.reason == "no_face_detector" and str(tmp_path / "missing.onnx") in str(e.value) \
+            or "no_such_detector" in str(e.value)
+    with pytest.raises(StageError) as e:
+        Anonymiser(FaceConfig(), PlateConfig(detector="no_such_detector"))
+    assert e.value.reason == "no_plate_detector"
+
+
+def test_decode_writes_no_unblurred_face_or_plate(tmp_path: Path) -> None:
+    rng = np.random.default_rng(2)
+    bg = texture(360, 480 + 8 * 6, seed=5)
+    c = composite(bg[:, :480], [FacePose(30), FacePose(44, yaw=0.3), FacePose(60, roll_deg=15)], [120], rng)
+    folder = tmp_path / "photos"
+    folder.mkdir()
+    raws = []
+    for i in range(6):  # the camera pans; the people and the plate stay in the picture
+        frame = bg[:, 8 * i: 8 * i + 480].copy()
+        objects = c.image[:, :480] != bg[:, :480]
+        frame[objects] = c.image[objects]
+        raws.append(frame)
+        cv2.imwrite(str(folder / f"{i + 1}.png"), frame)
+    out = decode.main(replace(decode.DecodeConfig(workers=1), min_frames=4), folder, tmp_path / "out")
+    table = pq.read_table(out / "frames.parquet").to_pylist()
+    kept = [r for r in table if r["kept"]]
+    assert len(kept) >= 4 and all(r["faces"] == 3 and r["plates"] >= 1 for r in kept)
+    for r in kept:
+        written, raw = cv2.imread(str(out / "images" / r["image"])), raws[r["source_frame"]]
+        for box in [*c.faces, *map(inner, c.plates)]:
+            assert detail(written, box) < 0.3 * detail(raw, box)
+    clip = json.loads((out / "clip.json").read_text())
+    assert clip["face_detector"] == "centerface" and clip["plate_detector"] == "text_rows"
+    assert clip["faces"]["upscale"] == 2.0 and clip["counts"]["plates_blurred"] >= len(kept)
+
+
+def test_only_decode_reads_source_pixels() -> None:
+    """Source media (video frames, image folders) are read in the decode stage alone, so every
+    later artifact is made from anonymised images."""
+    pkg = Path(decode.__file__).resolve().parents[2]
+    readers = {p.relative_to(pkg).as_posix() for p in pkg.rglob("*.py")
+               if re.search(r"\biter_frames\(|\.images\(\)", p.read_text())}
+    assert readers <= {"factory/ingest/decode.py", "factory/ingest/video_io.py"}, readers
+
+
+def test_scene_json_records_the_anonymiser() -> None:
+    from vid2sim.factory.runtime.pipeline import PipelineConfig
+    from vid2sim.formats.scene import make_scene_json
+
+    scene = make_scene_json("s0", source_uri="file:///v.mp4", source_sha256="0" * 64, clip_start_s=0.0,
+                            clip_end_s=1.0, scale_source="capture_height", config=PipelineConfig())
+    dec = scene["pipeline"]["config"]["decode"]
+    assert dec["faces"]["detector"] == "centerface" and dec["faces"]["score_threshold"] == 0.0
+    assert dec["plates"]["detector"] == "text_rows" and dec["plates"]["min_char_px"] == 6
