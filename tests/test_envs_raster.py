@@ -91,3 +91,23 @@ def test_bad_shapes_raise() -> None:
         rasterize(v, f, c[:1], K, EYE, W, H)
     with pytest.raises(ValueError, match="vertices"):
         rasterize(v[:, :2], f, c, K, EYE, W, H)
+
+
+def test_rasterize_into_is_the_composite_over_a_layer() -> None:
+    """Drawing over a layer in place equals rasterising alone and compositing by z-buffer."""
+    from vid2sim.envs.compositing import composite
+    from vid2sim.envs.raster import rasterize_into
+
+    rng = np.random.default_rng(3)
+    v, f, c = _random_soup(rng, 120)
+    rgb_a = rng.integers(0, 256, size=(H, W, 3), dtype=np.uint8)
+    depth_a = rng.uniform(0.5, 5.0, size=(H, W)).astype(np.float32)
+    depth_a[rng.random((H, W)) < 0.3] = np.inf  # empty splat pixels
+    want_rgb, want_depth = composite(rgb_a, depth_a, *rasterize(v, f, c, K, EYE, W, H))
+    rgb, depth = rgb_a.copy(), depth_a.copy()
+    rasterize_into(v, f, c, K, EYE, rgb, depth)
+    np.testing.assert_array_equal(rgb, want_rgb)
+    np.testing.assert_array_equal(depth, want_depth)
+    assert (rgb != rgb_a).any(-1).mean() > 0.1 and (rgb == rgb_a).all(-1).mean() > 0.1
+    with pytest.raises(ValueError, match="rasterize_into"):
+        rasterize_into(v, f, c, K, EYE, rgb.astype(np.float32), depth)

@@ -2,7 +2,7 @@
 
 `EpisodeActors.spawn` places 0-5 obstacles on the A* corridor (envs-assets' library), checks
 that a path around them still exists (obstacles that would cut the route are dropped, last
-first), adds the crowd, and keeps the obstacle-aware expert path. `draw_over` composites the
+first), adds the crowd, and keeps the obstacle-aware expert path. `draw_over` draws the
 actors into the camera image by z-buffer against the splat depth.
 """
 
@@ -15,7 +15,6 @@ from typing import Optional, Sequence
 import numpy as np
 from scipy import ndimage
 
-from vid2sim.envs.compositing import composite
 from vid2sim.envs.obstacles import ObstacleConfig, ObstacleSet, Placement, occupancy, place_on_corridor
 from vid2sim.envs.pedestrians import BODY_RADIUS, Crowd
 from vid2sim.envs.planning import GridPlanner
@@ -26,13 +25,11 @@ from vid2sim.formats.walkable import WalkableGrid
 OBSTACLE_MARGIN = 0.25
 
 
-def _over(rgb: np.ndarray, depth: np.ndarray, rgb_b: np.ndarray, depth_b: np.ndarray
-          ) -> tuple[np.ndarray, np.ndarray]:
-    """`composite` of layer b over (rgb, depth); skipped when b drew nothing (actors out of view:
-    the splat depth already holds +inf where empty, so the result would be the same)."""
-    if not np.isfinite(depth_b).any():
-        return rgb, depth
-    return composite(rgb, depth, rgb_b, depth_b)
+def _layer(a: np.ndarray, dtype=np.uint8) -> np.ndarray:
+    """a itself when it is a writable C-contiguous array of dtype, else such a copy."""
+    if a.dtype == dtype and a.flags.c_contiguous and a.flags.writeable:
+        return a
+    return np.array(a, dtype=dtype, order="C")
 
 
 class EpisodeActors:
@@ -102,14 +99,17 @@ class EpisodeActors:
 
     def draw_over(self, rgb: np.ndarray, depth: np.ndarray, K: np.ndarray, w2c: np.ndarray
                   ) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """Composite obstacles then pedestrians over (rgb, depth); also returns their seconds."""
-        H, W = depth.shape
+        """Obstacles then pedestrians drawn over (rgb, depth) by z-buffer (the composite of
+        `compositing.composite`, in place on copies only when the arrays are not writable
+        C-contiguous uint8 / float32); also returns their seconds."""
         t0 = time.process_time()
+        if (self.obstacles is not None and self.obstacles.placements) or self.crowd is not None:
+            rgb, depth = _layer(rgb), _layer(depth, np.float32)
         if self.obstacles is not None and self.obstacles.placements:
-            rgb, depth = _over(rgb, depth, *self.obstacles.draw(K, w2c, W, H))
+            self.obstacles.draw_into(K, w2c, rgb, depth)
         t1 = time.process_time()
         if self.crowd is not None:
-            rgb, depth = _over(rgb, depth, *self.crowd.draw(K, w2c, W, H))
+            self.crowd.draw_into(K, w2c, rgb, depth)
         return rgb, depth, t1 - t0, time.process_time() - t1
 
     def obstacle_xy(self) -> np.ndarray:

@@ -26,7 +26,7 @@ import trimesh
 from .planning import GridPlanner
 from vid2sim.bullet import import_pybullet
 
-from .raster import rasterize
+from .raster import rasterize, rasterize_into
 
 pb = import_pybullet()  # without its "pybullet build time" banner
 
@@ -269,6 +269,11 @@ class Crowd:
              ) -> tuple[np.ndarray, np.ndarray]:
         """Raster the crowd: (rgb [H, W, 3] u8, depth [H, W] f32, +inf where empty)."""
         return rasterize(*self.mesh_arrays(), K, world_to_cam, width, height)
+
+    def draw_into(self, K: np.ndarray, world_to_cam: np.ndarray, rgb: np.ndarray,
+                  depth: np.ndarray) -> None:
+        """Raster the crowd over (rgb [H, W, 3] u8, depth [H, W] f32) in place (z-buffer)."""
+        rasterize_into(*self.mesh_arrays(), K, world_to_cam, rgb, depth)
 
     def remove(self) -> None:
         for b in self.body_ids:

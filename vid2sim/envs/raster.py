@@ -9,7 +9,8 @@ pixel (i, j) is sampled at its centre (j + 0.5, i + 0.5), as the splat renderer
 windings are drawn: collision meshes do not have consistent winding).
 
 `rasterize` is the numba kernel; `rasterize_reference` is the plain numpy version it is
-tested against (tests/test_envs_raster.py).
+tested against (tests/test_envs_raster.py). `rasterize_into` draws over an existing layer
+(the splat render) in place: the z-buffer composite of the two, in one pass.
 """
 
 from __future__ import annotations
@@ -41,18 +42,31 @@ def rasterize(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray,
               K: np.ndarray, world_to_cam: np.ndarray, width: int, height: int,
               near: float = NEAR) -> tuple[np.ndarray, np.ndarray]:
     """Draw a triangle mesh: (rgb [H, W, 3] u8 (black where empty), depth [H, W] f32)."""
-    _check(vertices, faces, face_colors)
     rgb = np.zeros((height, width, 3), dtype=np.uint8)
     depth = np.full((height, width), np.inf, dtype=np.float32)
+    rasterize_into(vertices, faces, face_colors, K, world_to_cam, rgb, depth, near)
+    return rgb, depth
+
+
+def rasterize_into(vertices: np.ndarray, faces: np.ndarray, face_colors: np.ndarray,
+                   K: np.ndarray, world_to_cam: np.ndarray, rgb: np.ndarray, depth: np.ndarray,
+                   near: float = NEAR) -> None:
+    """Draw a triangle mesh over a layer in place: rgb [H, W, 3] u8 and depth [H, W] f32
+    (C-contiguous) take a triangle's colour and depth where it is nearer than depth (ties keep
+    the layer). For a layer whose depth is > 0 or +inf this is
+    `compositing.composite(rgb, depth, *rasterize(...))` without the second image."""
+    _check(vertices, faces, face_colors)
+    if rgb.dtype != np.uint8 or depth.dtype != np.float32 or rgb.shape != depth.shape + (3,) \
+            or not (rgb.flags.c_contiguous and depth.flags.c_contiguous):
+        raise ValueError("rasterize_into: rgb must be C-contiguous [H, W, 3] uint8 and depth [H, W] float32")
     if len(faces) == 0:
-        return rgb, depth
+        return
     verts = np.ascontiguousarray(vertices, dtype=np.float32)
     cam = _transform(verts, np.asarray(world_to_cam, dtype=np.float64))  # [V, 3]
     Kd = np.asarray(K, dtype=np.float64)
     _raster_kernel(cam, np.ascontiguousarray(faces, dtype=np.int32),
                    np.ascontiguousarray(face_colors, dtype=np.uint8), Kd[0, 0], Kd[0, 1],
                    Kd[0, 2], Kd[1, 1], Kd[1, 2], float(near), rgb, depth)
-    return rgb, depth
 
 
 @njit(cache=True)

@@ -4,7 +4,8 @@
 nothing was drawn). Splats are rendered with `vid2sim.splats` StaticScene (cpu backend, forward
 only) with the paper's screen-space covariance culling on; pixels whose splat coverage is below
 0.5 read as empty (+inf depth). `FastSplatView` is the approximate fast path (fidelity "fast"):
-the scene's sim-ready set (`envs/simready.py`) through `splats.cpu.FastBatch`, same outputs.
+the scene's sim-ready set (`envs/simready.py`) through `splats.cpu.FastBatch`'s kernels, drawn
+by `splats.cpu.fastview.FastView` (one numba call from the pose to the uint8 image), same outputs.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from vid2sim.envs.simready import SimReadySet, sim_ready_set
 from vid2sim.splats import GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
 from vid2sim.splats.cpu.batch import SceneBatch
+from vid2sim.splats.cpu.fastview import FastView
 
 EMPTY_ALPHA = 0.5
 
@@ -68,6 +70,7 @@ class FastSplatView:
         self.conf, self.fast, self.assets = conf, fast, assets
         self.K = intrinsics(conf)
         self._sim: Optional[SimReadySet] = None
+        self._view: Optional[FastView] = None
         self.settings = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
                                        cov_cull_alpha=conf.cov_cull_alpha, active_sh_degree=0)
 
@@ -80,9 +83,13 @@ class FastSplatView:
         return self._sim
 
     def draw(self, world_to_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        out = self.sim.batch.render([splat_camera(self.conf, world_to_cam)], settings=self.settings,
-                                    t_stop=self.fast.t_stop, n_workers=1)
-        return view_outputs(out.rgb[0], out.depth[0], out.alpha[0])
+        """The pixels of `sim.batch.render` + `view_outputs` (tests/test_splats_fastview.py)."""
+        if self._view is None:  # its own scratch: the batch is shared by the envs of a process
+            c = self.conf
+            self._view = FastView(self.sim.batch, c.width, c.height, c.near, c.far,
+                                  c.cov_cull_alpha, self.fast.t_stop, EMPTY_ALPHA)
+        K = self.K
+        return self._view.draw(world_to_cam, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
 
 
 class MeshView:
