@@ -20,6 +20,17 @@ STAGE = "recon"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
 
 
+@dataclass(frozen=True)
+class ReconOutputs:
+    """Files of a finished recon folder, relative to it."""
+
+    splats: str = "splats.ply"
+    metrics: str = "metrics.json"
+
+
+OUTPUTS = ReconOutputs()
+
+
 @dataclass
 class View:
     """One frame at the training resolution."""

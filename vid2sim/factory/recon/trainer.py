@@ -23,7 +23,7 @@ import torch
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import losses as L
 from vid2sim.factory.recon.config import ReconConfig
-from vid2sim.factory.recon.data import STAGE, STAGE_VERSION, View, load_views, scene_extent
+from vid2sim.factory.recon.data import OUTPUTS, STAGE, STAGE_VERSION, View, load_views, scene_extent
 from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune_only, reset_opacity
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
@@ -255,7 +255,7 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
             priors = load_or_estimate_priors(conf, views, np.asarray(clip.points_xyz), out_dir)
         with Timer() as t_train:
             model, summary = train(conf, clip, views, priors, out_dir, key)
-        write_ply(model, out_dir / "splats.ply")
+        write_ply(model, out_dir / OUTPUTS.splats)
         gt_dir = gt_depth_dir or clip.frame_info.get("gt_depth_dir")
         gt = load_gt_depths(Path(gt_dir), views) if gt_dir else {}
         metrics = evaluate_views(model, [v for v in views if v.split == "test"], conf, gt)
@@ -264,7 +264,7 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
                    resumed_from=summary["resumed_from"], prior_seconds=t_prior.seconds,
                    train_seconds=t_train.seconds, seconds=timer.seconds,
                    prior_coverage=_coverage(priors), resolution=[views[0].width, views[0].height])
-    _write_json(out_dir / "metrics.json", metrics)
+    _write_json(out_dir / OUTPUTS.metrics, metrics)
     _write_json(out_dir / "train_log.json", {"log": summary["log"]})
     (out_dir / CHECKPOINT).unlink(missing_ok=True)
     mark_done(out_dir, STAGE, key, {k: v for k, v in metrics.items() if not isinstance(v, (list, dict))},

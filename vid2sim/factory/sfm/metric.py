@@ -28,12 +28,23 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
 from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
 
 STAGE = "metric"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+
+@dataclass(frozen=True)
+class MetricOutputs:
+    """Folders of a finished metric output beside the PosedClip files, relative to it."""
+
+    colmap: str = "sparse"  # the COLMAP model in the metric frame
+
+
+OUTPUTS = MetricOutputs()
 
 
 @dataclass
@@ -274,7 +285,7 @@ def load_sfm(sfm_dir: Path) -> tuple[Any, Path, Optional[Path], dict]:
     und = Path(sfm_dir) / "undistorted"
     if not (und / "sparse").is_dir():
         raise StageError(STAGE, "missing_input", f"{sfm_dir} has no undistorted/sparse model")
-    quality = json.loads((Path(sfm_dir) / "quality.json").read_text())
+    quality = json.loads((Path(sfm_dir) / sfm.OUTPUTS.quality).read_text())
     if quality.get("images_dir"):  # relative to the SfM folder (absolute in older outputs)
         quality["images_dir"] = str(Path(sfm_dir) / quality["images_dir"])
     masks = und / "masks" if (und / "masks").is_dir() else None
@@ -383,7 +394,7 @@ def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path, frames_dir: Optional[
         apply_sim3(rec, s, R, t)
         clip = posed_clip(conf, rec, images, masks, str(frames_dir or quality.get("images_dir", "")), facts)
         clip.save(out_dir)
-        write_colmap(rec, out_dir / "sparse")
+        write_colmap(rec, out_dir / OUTPUTS.colmap)
         mask_names = {p.name[:-4] for p in masks.glob("*.png")} if masks else None
         write_transforms(rec, out_dir / "transforms.json", str(images.resolve()),
                          str(masks.resolve()) if masks else None, mask_names)

@@ -35,6 +35,17 @@ from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+
+
+@dataclass(frozen=True)
+class SfMOutputs:
+    """Files of a finished sfm folder, relative to it."""
+
+    quality: str = "quality.json"
+
+
+OUTPUTS = SfMOutputs()
+
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 
 
@@ -313,7 +324,7 @@ def measure(rec: Any, n: int) -> SfMQuality:
 def fail(out_dir: Path, q: SfMQuality, reason: str, detail: str) -> StageError:
     """Record the failure in quality.json (no marker) and build the error to raise."""
     q.failed = reason
-    (out_dir / "quality.json").write_text(json.dumps(to_jsonable(q), indent=2))
+    (out_dir / OUTPUTS.quality).write_text(json.dumps(to_jsonable(q), indent=2))
     return StageError(STAGE, reason, detail)
 
 
@@ -410,7 +421,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
         write_outputs(out_dir, images_dir, masks, rec, conf)
     shutil.rmtree(out_dir / "mapping", ignore_errors=True)
     q.seconds["export"] = t.seconds
-    (out_dir / "quality.json").write_text(json.dumps(to_jsonable(q), indent=2))
+    (out_dir / OUTPUTS.quality).write_text(json.dumps(to_jsonable(q), indent=2))
     mark_done(out_dir, STAGE, key, to_jsonable(q), sum(q.seconds.values()))
     return out_dir
 
@@ -426,4 +437,4 @@ def check_quality(conf: SfMConfig, out_dir: Path, q: SfMQuality) -> None:
 
 
 def load_quality(sfm_dir: Path) -> dict:
-    return json.loads((Path(sfm_dir) / "quality.json").read_text())
+    return json.loads((Path(sfm_dir) / OUTPUTS.quality).read_text())
