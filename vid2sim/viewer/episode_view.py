@@ -105,10 +105,10 @@ class EpisodePlayer:
 def _static_marks(server: viser.ViserServer, t: EpisodeTrace) -> None:
     if len(t.planned_path) >= 2:
         server.scene.add_spline_catmull_rom("/episode/planned_path", _lift(t.planned_path), color=PLANNED_RGB,
-                                            line_width=2.0)
+                                            thickness=0.04)
     if t.steps >= 2:
         server.scene.add_line_segments("/episode/taken_path", np.stack([_lift(t.xy[:-1]), _lift(t.xy[1:])], 1),
-                                       colors=TAKEN_RGB, line_width=3.0)
+                                       colors=TAKEN_RGB, thickness=0.06)
     server.scene.add_icosphere("/episode/goal", radius=0.3, color=GOAL_RGB, position=tuple(_lift(t.goal, 0.3)[0]))
     hits = np.asarray(t.xy, np.float64)[np.asarray(t.collided, bool)]
     if len(hits):

@@ -61,7 +61,7 @@ def _camera_path(server: viser.ViserServer, cams: CameraPath) -> list:
     nodes = []
     if len(cams.centers) >= 2:
         nodes.append(server.scene.add_spline_catmull_rom("/scene/camera_path/line", cams.centers,
-                                                         color=PATH_RGB, line_width=3.0))
+                                                         color=PATH_RGB, thickness=0.06))
     step = max(1, len(cams.centers) // MAX_FRUSTUMS)
     for i in range(0, len(cams.centers), step):
         wxyz = viser.transforms.SO3.from_matrix(cams.cam_to_world[i, :3, :3]).wxyz

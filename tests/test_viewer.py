@@ -1,0 +1,133 @@
+"""The viewer's inputs without a browser: layers of a bundle (one missing), the splat budget,
+the scene card, scene ids against a registry, the port check, episode traces and reports."""
+
+from __future__ import annotations
+
+import json
+import socket
+
+import numpy as np
+import pytest
+from registry_fixtures import make_bundle
+
+from vid2sim.formats.episode_trace import EpisodeTrace, read_trace, trace_path
+from vid2sim.formats.errors import BundleError
+from vid2sim.registry import Registry
+from vid2sim.viewer.app import open_viewer
+from vid2sim.viewer.card import scene_card
+from vid2sim.viewer.episode import resolve_episode
+from vid2sim.viewer.errors import EpisodeInputError, NotABundle, PortInUse, UnknownScene
+from vid2sim.viewer.layers import load_layers
+from vid2sim.viewer.server import check_port_free
+from vid2sim.viewer.source import resolve_bundle
+from vid2sim.viewer.splats import covariances, keep_mask, read_splat_layer
+
+
+@pytest.fixture
+def bundle(tmp_path):
+    return make_bundle(tmp_path / "b", "scene-a", n_splats=400, metrics={"corridor.walkable_fraction": 0.99,
+                                                                          "recon.psnr": 27.5})
+
+
+def test_all_layers_load(bundle) -> None:
+    layers = load_layers(bundle)
+    assert layers.missing == {} and layers.scene_id == "scene-a"
+    assert layers.splats.shown == layers.splats.total == 400
+    assert len(layers.mesh.faces) == 12 and layers.walkable.grid.sum() == 36
+    assert layers.cameras.centers.shape == (16, 3)
+    lo, hi = layers.bounds()
+    assert (hi > lo).all()
+
+
+def test_missing_layer_is_named_and_the_rest_shown(bundle) -> None:
+    (bundle / "collision.ply").unlink()
+    layers = load_layers(bundle)
+    assert list(layers.missing) == ["collision.ply"] and "missing collision mesh" in layers.missing["collision.ply"]
+    assert layers.mesh is None and layers.splats is not None and layers.walkable is not None
+    assert "Missing layers" in scene_card(layers.scene, layers.splats, layers.missing)
+
+
+def test_folder_without_layers_is_not_a_bundle(tmp_path) -> None:
+    with pytest.raises(NotABundle, match="not a scene bundle"):
+        load_layers(tmp_path)
+
+
+def test_splat_budget_keeps_the_largest_opaque_gaussians(bundle) -> None:
+    layer = read_splat_layer(bundle / "splats.ply", budget=50)
+    assert layer.shown == 50 and layer.total == 400
+    opacity = np.array([0.9, 0.1, 0.9, 0.9])
+    scales = np.array([[1, 1, 1], [5, 5, 5], [0.1, 0.1, 0.1], [2, 2, 0.01]], float)
+    assert keep_mask(opacity, scales, 2).tolist() == [1, 3]  # scores 0.9, 2.5, 0.009, 3.6
+
+
+def test_covariance_of_a_rotated_gaussian() -> None:
+    quat = np.array([[np.cos(np.pi / 4), 0, 0, np.sin(np.pi / 4)]])  # 90 deg about z
+    cov = covariances(quat, np.array([[2.0, 1.0, 0.5]]))[0]
+    assert np.allclose(np.diag(cov), [1.0, 4.0, 0.25], atol=1e-6)
+
+
+def test_scene_card_shows_source_licence_and_corridor(bundle) -> None:
+    layers = load_layers(bundle)
+    card = scene_card(layers.scene, layers.splats, layers.missing)
+    assert "file:///videos/scene-a.mp4" in card and "Walked corridor" in card and "walkable_fraction" in card
+    assert "400 of 400" in card
+
+
+def test_scene_id_from_registry_and_unknown_id(tmp_path, bundle) -> None:
+    reg = Registry(tmp_path / "reg")
+    reg.add(bundle)
+    out = resolve_bundle("scene-a", str(reg.root))
+    assert (out / "splats.ply").is_file()
+    with pytest.raises(UnknownScene, match="unknown scene 'nope'.*scene-a"):
+        resolve_bundle("nope", str(reg.root))
+    with pytest.raises(UnknownScene, match="no registry there"):
+        resolve_bundle("nope", str(tmp_path / "empty"))
+
+
+def test_port_in_use_is_named() -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        with pytest.raises(PortInUse, match=f"port {port}"):
+            check_port_free("127.0.0.1", port)
+
+
+def test_bad_input_fails_before_a_server_starts(tmp_path, bundle) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        with pytest.raises(PortInUse):
+            open_viewer(str(bundle), port=s.getsockname()[1])
+    with pytest.raises(EpisodeInputError, match="no such file"):
+        open_viewer(episode=tmp_path / "missing.trace.json")
+
+
+def _trace(tmp_path) -> EpisodeTrace:
+    t = EpisodeTrace(scene_id="scene-a", robot={"length_m": 0.9, "width_m": 0.6, "height_m": 0.6},
+                     goal=[3.0, 0.0], planned_path=[[0.0, 0.0], [3.0, 0.0]], video="ep.mp4")
+    for k in range(4):
+        t.append((k, 0.0), 0.0, k == 2, [[1.0, 1.0]], np.zeros((0, 2)))
+    t.write(trace_path(tmp_path / "ep.mp4"))
+    return t
+
+
+def test_trace_round_trip_and_report(tmp_path) -> None:
+    _trace(tmp_path)
+    back = read_trace(tmp_path / "ep.trace.json")
+    assert back.steps == 4 and back.collided == [False, False, True, False] and back.obstacles[0] == [[1.0, 1.0]]
+    report = tmp_path / "report.json"
+    report.write_text(json.dumps({"videos": [str(tmp_path / "ep.mp4")], "config": {"registry": "R"}}))
+    src = resolve_episode(report)
+    assert src.trace.steps == 4 and src.registry == "R" and src.video is None  # the MP4 itself is not there
+    with pytest.raises(EpisodeInputError, match="episode 3 asked for"):
+        resolve_episode(report, 3)
+
+
+def test_bad_traces_are_named(tmp_path) -> None:
+    (tmp_path / "x.trace.json").write_text(json.dumps({"schema": "other"}))
+    with pytest.raises(BundleError, match="not an episode trace"):
+        read_trace(tmp_path / "x.trace.json")
+    (tmp_path / "r.json").write_text(json.dumps({"videos": []}))
+    with pytest.raises(EpisodeInputError, match="recorded no episodes"):
+        resolve_episode(tmp_path / "r.json")
