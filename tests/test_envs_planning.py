@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from vid2sim.envs.planning import GridPlanner, inflate, path_length
+from vid2sim.envs.planning import GridPlanner, astar, inflate, path_length
 from vid2sim.formats.walkable import WalkableGrid as Grid
 
 
@@ -122,3 +122,24 @@ def test_far_end_restart_stays_on_end_cells():
         ep = sample_episode(p, rng, (7.0, 9.0), EpisodeConfig(), ends=ends)
         for x, y in (ep.start, ep.goal):
             assert ends[p.to_cell(x, y)]
+
+
+def test_shortcut_kernel_equals_the_reference_loop():
+    """The numba line-of-sight pruning keeps the same waypoints as the plain loop."""
+    rng = np.random.default_rng(5)
+    grid = np.ones((60, 90), np.uint8)
+    grid[rng.random(grid.shape) < 0.04] = 0  # scattered blocked cells
+    grid[10:50, 40] = 0  # a wall with gaps at the ends
+    planner = GridPlanner(Grid(grid, np.zeros(2), 0.1), clearance=0.05)
+    n_long = 0
+    for _ in range(20):
+        path = planner.plan(planner.sample_free(rng), planner.sample_free(rng))
+        if path is None:
+            continue
+        cells = planner.to_world(*astar(planner.free, planner.snap_cell(*path[0]),
+                                        planner.snap_cell(*path[-1])).T)
+        np.testing.assert_array_equal(planner.shortcut(cells), planner.shortcut_reference(cells))
+        n_long += len(cells) > 30
+    assert n_long >= 5
+    one = np.array([[1.0, 1.0]])
+    np.testing.assert_array_equal(planner.shortcut(one), planner.shortcut_reference(one))

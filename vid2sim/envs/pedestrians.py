@@ -22,6 +22,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 import trimesh
+from numba import njit
 
 from .planning import GridPlanner
 from vid2sim.bullet import import_pybullet
@@ -37,6 +38,7 @@ STRIDE = 1.4  # m per gait cycle (two steps)
 SWING = 0.45  # rad, peak leg swing
 YIELD_DISTANCE = 0.9  # m
 YIELD_ANGLE = math.radians(50.0)
+COS_YIELD = math.cos(YIELD_ANGLE)
 MAX_WAIT = 2.0  # s
 SKIN = ((230, 190, 160), (190, 140, 100), (120, 80, 55), (80, 55, 40))
 LIGHT_DIR = np.array([0.35, 0.25, 0.9]) / np.linalg.norm([0.35, 0.25, 0.9])
@@ -84,6 +86,42 @@ def _rot_z(a: float) -> np.ndarray:
     return np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
 
 
+@njit(cache=True)
+def _path_point(path: np.ndarray, arc: np.ndarray, s: float) -> tuple[float, float]:
+    """The point at arc length s along waypoints path [K, 2] with cumulative lengths arc [K]
+    (`np.interp` per axis: clamped at both ends; a repeated arc value takes the later point)."""
+    K = arc.shape[0]
+    if s <= arc[0]:
+        return path[0, 0], path[0, 1]
+    if s >= arc[K - 1]:
+        return path[K - 1, 0], path[K - 1, 1]
+    k = np.searchsorted(arc, s, side="right") - 1  # arc[k] <= s < arc[k + 1]
+    t = (s - arc[k]) / (arc[k + 1] - arc[k])
+    return (path[k, 0] + t * (path[k + 1, 0] - path[k, 0]),
+            path[k, 1] + t * (path[k + 1, 1] - path[k, 1]))
+
+
+@njit(cache=True)
+def _pose_vertices(local, pivot, sign, owner, pose):
+    """World vertices [V, 3] f32 of rest-mesh vertices local [V, 3]: limbs swung by
+    sign [V] x SWING x sin(phase) about their joint pivot [V, 3] (y axis), then turned by yaw
+    and moved to (x, y) of their walker owner [V]; pose [P, 4] = (phase, yaw, x, y)."""
+    out = np.empty((local.shape[0], 3), np.float32)
+    for v in range(local.shape[0]):
+        p = owner[v]
+        ang = sign[v] * SWING * math.sin(pose[p, 0])
+        c, s = math.cos(ang), math.sin(ang)
+        dx, dy, dz = local[v, 0] - pivot[v, 0], local[v, 1] - pivot[v, 1], local[v, 2] - pivot[v, 2]
+        x = c * dx + s * dz + pivot[v, 0]
+        y = dy + pivot[v, 1]
+        z = -s * dx + c * dz + pivot[v, 2]
+        cy, sy = math.cos(pose[p, 1]), math.sin(pose[p, 1])
+        out[v, 0] = cy * x - sy * y + pose[p, 2]
+        out[v, 1] = sy * x + cy * y + pose[p, 3]
+        out[v, 2] = z
+    return out
+
+
 class _Walker:
     """One person's state: path, arc position, speed, gait phase."""
 
@@ -108,15 +146,16 @@ class _Walker:
         """Walk `dist` m along the path; True when the goal is reached."""
         if self.path is None or len(self.path) < 2:
             return True
-        self.s = min(self.s + dist, float(self.arc[-1]))
-        xy = np.array([np.interp(self.s, self.arc, self.path[:, 0]),
-                       np.interp(self.s, self.arc, self.path[:, 1])])
-        step = xy - self.xy
-        if np.hypot(*step) > 1e-6:
-            self.yaw = math.atan2(step[1], step[0])
-        self.phase += 2 * math.pi * float(np.hypot(*step)) / STRIDE
-        self.xy = xy
-        return self.s >= self.arc[-1] - 1e-9
+        end = float(self.arc[-1])
+        self.s = min(self.s + dist, end)
+        x, y = _path_point(self.path, self.arc, self.s)
+        dx, dy = x - float(self.xy[0]), y - float(self.xy[1])
+        step = math.hypot(dx, dy)
+        if step > 1e-6:
+            self.yaw = math.atan2(dy, dx)
+        self.phase += 2 * math.pi * step / STRIDE
+        self.xy = np.array([x, y])
+        return self.s >= end - 1e-9
 
     def world_vertices(self) -> list[np.ndarray]:
         """Every part's vertices [V_i, 3] in the world at the current pose and gait phase."""
@@ -230,11 +269,15 @@ class Crowd:
     @staticmethod
     def _blocked(k: int, w: _Walker, others: np.ndarray) -> bool:
         """True when someone other than walker k stands within the yield cone ahead of it."""
-        d = np.delete(others, k, axis=0) - w.xy  # [M, 2]
-        dist = np.hypot(d[:, 0], d[:, 1])
-        ahead = d @ np.array([math.cos(w.yaw), math.sin(w.yaw)])  # [M]
-        close = (dist < YIELD_DISTANCE) & (dist > 1e-6)
-        return bool((close & (ahead > dist * math.cos(YIELD_ANGLE))).any())
+        x, y, c, s = float(w.xy[0]), float(w.xy[1]), math.cos(w.yaw), math.sin(w.yaw)
+        for m, (ox, oy) in enumerate(others.tolist()):
+            if m == k:
+                continue
+            dx, dy = ox - x, oy - y
+            dist = math.hypot(dx, dy)
+            if 1e-6 < dist < YIELD_DISTANCE and dx * c + dy * s > dist * COS_YIELD:
+                return True
+        return False
 
     @property
     def positions(self) -> np.ndarray:
@@ -249,21 +292,13 @@ class Crowd:
     def mesh_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Everyone's world mesh: vertices [V, 3] f32, faces [F, 3] i32, colours [F, 3] u8.
 
-        Vectorised over all vertices; `_Walker.world_vertices` is the per-part reference."""
+        One numba pass over all vertices (`_pose_vertices`); `_Walker.world_vertices` is the
+        per-part reference."""
         if not self.walkers:
             return np.zeros((0, 3), np.float32), self._faces, self._colors
-        phase = np.array([w.phase for w in self.walkers])[self._owner]  # [V]
-        yaw = np.array([w.yaw for w in self.walkers])[self._owner]
-        xy = self.positions[self._owner]  # [V, 2]
-        ang = self._sign * SWING * np.sin(phase)
-        c, s = np.cos(ang), np.sin(ang)
-        d = self._local - self._pivot  # [V, 3] swing about the joint's y axis
-        x = c * d[:, 0] + s * d[:, 2] + self._pivot[:, 0]
-        y = d[:, 1] + self._pivot[:, 1]
-        z = -s * d[:, 0] + c * d[:, 2] + self._pivot[:, 2]
-        cy, sy = np.cos(yaw), np.sin(yaw)
-        verts = np.stack([cy * x - sy * y + xy[:, 0], sy * x + cy * y + xy[:, 1], z], 1)
-        return verts.astype(np.float32), self._faces, self._colors
+        pose = np.array([(w.phase, w.yaw, w.xy[0], w.xy[1]) for w in self.walkers])  # [P, 4]
+        verts = _pose_vertices(self._local, self._pivot, self._sign, self._owner, pose)
+        return verts, self._faces, self._colors
 
     def draw(self, K: np.ndarray, world_to_cam: np.ndarray, width: int, height: int
              ) -> tuple[np.ndarray, np.ndarray]:

@@ -82,9 +82,16 @@ class GridPlanner:
         r, c = self.to_cell(x, y)
         return self.inside(r, c) and bool(self.free[r, c])
 
+    def free_cells(self) -> tuple[np.ndarray, np.ndarray]:
+        """(rows [F], cols [F]) of the free cells, row-major (`np.nonzero(free)`; kept: the map
+        does not change)."""
+        if getattr(self, "_free_cells", None) is None:
+            self._free_cells = np.nonzero(self.free)
+        return self._free_cells
+
     def sample_free(self, rng: np.random.Generator) -> tuple[float, float]:
         """A uniformly random point inside a random free cell."""
-        rows, cols = np.nonzero(self.free)
+        rows, cols = self.free_cells()
         if len(rows) == 0:
             raise ValueError("walkable grid has no free cell (after clearance inflation)")
         i = int(rng.integers(len(rows)))
@@ -122,7 +129,14 @@ class GridPlanner:
                              float(a[0]), float(a[1]), float(b[0]), float(b[1]))
 
     def shortcut(self, pts: np.ndarray) -> np.ndarray:
-        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every 0.25 m."""
+        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every
+        0.25 m (`_shortcut_keep`, one numba call; `shortcut_reference` is the plain loop)."""
+        pts = np.ascontiguousarray(pts, np.float64)
+        keep = _shortcut_keep(self.free, self.origin[0], self.origin[1], self.resolution, pts)
+        return densify(pts[keep], 0.25)
+
+    def shortcut_reference(self, pts: np.ndarray) -> np.ndarray:
+        """`shortcut` as a Python loop over `line_free` (the reference it is tested against)."""
         keep = [0]
         i, j = 0, 1
         while j < len(pts) - 1:  # extend the segment from pts[i] while it stays free
@@ -171,6 +185,23 @@ def _segment_free(free: np.ndarray, ox: float, oy: float, res: float, ax: float,
         if r < 0 or r >= H or c < 0 or c >= W or not free[r, c]:
             return False
     return True
+
+
+@numba.njit(cache=True)
+def _shortcut_keep(free: np.ndarray, ox: float, oy: float, res: float, pts: np.ndarray) -> np.ndarray:
+    """Indices [K'] of the waypoints pts [K, 2] the greedy line-of-sight pruning keeps."""
+    K = pts.shape[0]
+    keep = np.empty(K + 1, np.int64)
+    keep[0] = 0
+    n, i, j = 1, 0, 1
+    while j < K - 1:  # extend the segment from pts[i] while it stays free
+        if not _segment_free(free, ox, oy, res, pts[i, 0], pts[i, 1], pts[j + 1, 0], pts[j + 1, 1]):
+            keep[n] = j
+            n += 1
+            i = j
+        j += 1
+    keep[n] = K - 1
+    return keep[:n + 1]
 
 
 def densify(pts: np.ndarray, step: float) -> np.ndarray:
