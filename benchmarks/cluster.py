@@ -44,12 +44,11 @@ def drive(address: str, work_uri: str, registry_uri: str, clips: int, out: Path)
     jobs = [_clip(out.parent, store, seed) for seed in range(1, clips + 1)]
     ray.init(address=address, log_to_driver=False)
     t0 = time.perf_counter()
-    results = run_clips(jobs, _stages(), on_clip_done=lambda s: registry.add(bundle_path(s.context)))
+    results = run_clips(jobs, _stages(), on_clip_done=lambda s: registry.add(bundle_path(s.work)))
     wall = time.perf_counter() - t0
     ray.shutdown()
     out.write_text(json.dumps({"wall_s": wall, "ok": sum(r.ok for r in results),
-                               "nodes": len({v for r in results for k, v in r.context.items()
-                                             if k.startswith("node:")}),
+                               "nodes": len({v for r in results for v in r.work.nodes.values()}),
                                "stage_s": [r.seconds for r in results]}))
 
 

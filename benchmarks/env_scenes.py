@@ -36,7 +36,7 @@ def find_bundle(name: str) -> Optional[Path]:
 
 
 def _ingest(name: str, video: str, licence: str, capture_height: float) -> Path:
-    from vid2sim.factory.runtime.pipeline import ingest, preset
+    from vid2sim.factory.runtime.pipeline import bundle_path, ingest, preset
 
     work = CACHE / name
     report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=preset("fast"),
@@ -44,7 +44,7 @@ def _ingest(name: str, video: str, licence: str, capture_height: float) -> Path:
     res = report.results[0]
     if not res.ok:
         raise RuntimeError(f"{name}: failed at {res.failed_stage}: {res.reason}")
-    return Path(res.context["bundle_dir"])
+    return bundle_path(res.work)
 
 
 def build(name: str, refresh: bool = False) -> Optional[Path]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from vid2sim.factory.runtime.bundle_assembly import tag
+from vid2sim.factory.runtime.steps.bundle import tag
 from vid2sim.formats.scene import make_scene_json
 
 

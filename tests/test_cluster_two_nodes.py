@@ -18,8 +18,9 @@ from __future__ import annotations
 import json
 import subprocess
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Mapping
 
 import numpy as np
 import pytest
@@ -33,8 +34,9 @@ from vid2sim.factory.evaluation.corridor import CorridorConfig
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.runtime.object_store import ObjectStore
 from vid2sim.factory.runtime.orchestrator import run_clips
-from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, bundle_path, stage_specs
+from vid2sim.factory.runtime.pipeline import ClipJob, ClipWork, PipelineConfig, bundle_path, clip_work, stage_specs
 from vid2sim.factory.runtime.stage_cache import mark_done
+from vid2sim.factory.runtime.steps import metric
 from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.factory.synthetic.make_street import main as make_street
 from vid2sim.registry import Registry
@@ -42,14 +44,22 @@ from vid2sim.registry import Registry
 BACK_HALF = ("recon", "meshing", "walkable", "bundle")
 
 
+@dataclass(frozen=True)
+class TracedWork(ClipWork):
+    """A clip's work record that also keeps the node id each stage ran on."""
+
+    nodes: Mapping[str, str] = field(default_factory=dict)
+
+
 class Traced:
-    """Stage wrapper adding the node id the stage ran on to its outputs (picklable)."""
+    """Stage wrapper adding the node id the stage ran on to the clip's record (picklable)."""
 
     def __init__(self, name: str, fn) -> None:
         self.name, self.fn = name, fn
 
-    def __call__(self, ctx: dict) -> dict:
-        return {**self.fn(ctx), f"node:{self.name}": ray.get_runtime_context().get_node_id()}
+    def __call__(self, work: TracedWork) -> TracedWork:
+        out = self.fn(work)
+        return replace(out, nodes={**out.nodes, self.name: ray.get_runtime_context().get_node_id()})
 
 
 def _conf() -> PipelineConfig:
@@ -64,7 +74,7 @@ def _conf() -> PipelineConfig:
     return conf
 
 
-def _clip(tmp: Path, store: ObjectStore, seed: int) -> tuple[str, dict]:
+def _clip(tmp: Path, store: ObjectStore, seed: int) -> tuple[str, TracedWork]:
     """A synthetic street uploaded as the clip's finished `posed` folder; its starting context."""
     conf = street_preset("test", seed=seed, duration_s=2.0, width=160, height=90, write_frames=True)
     street = make_street(conf, tmp / f"street{seed}")
@@ -73,13 +83,13 @@ def _clip(tmp: Path, store: ObjectStore, seed: int) -> tuple[str, dict]:
     store.put_dir(street, f"{clip_id}/posed")
     spec = ClipSpec(clip_id, resolve_source(street / "video.mp4"), None, f"street-{seed}", 1.5, {})
     job = ClipJob(spec, f"synthetic-street-{seed}", "CC0")
-    return clip_id, {"job": job, "conf": _conf(), "scene_id": job.scene_id, "cpus": 1, "clip_id": clip_id,
-                     "work_uri": store.root, "posed_dir": "posed"}
+    start = clip_work(job, _conf(), store.root, 1, metric=metric.Outputs(Path("posed")))  # enters posed
+    return clip_id, TracedWork(start.job, start.conf, start.workdir, start.cpus, start.outputs)
 
 
 def _stages() -> list:
     specs = [s for s in stage_specs(1.0) if s.name in BACK_HALF]
-    return [replace(s, fn=type(s.fn)(Traced(s.name, s.fn.fn))) for s in specs]
+    return [replace(s, fn=Traced(s.name, s.fn)) for s in specs]
 
 
 def drive(address: str, work_uri: str, registry_uri: str, out: Path) -> None:
@@ -87,9 +97,9 @@ def drive(address: str, work_uri: str, registry_uri: str, out: Path) -> None:
     store, registry = ObjectStore(work_uri), Registry(registry_uri)
     clips = [_clip(out.parent, store, seed) for seed in (1, 2)]
     ray.init(address=address, log_to_driver=False)
-    results = run_clips(clips, _stages(), on_clip_done=lambda s: registry.add(bundle_path(s.context)))
+    results = run_clips(clips, _stages(), on_clip_done=lambda s: registry.add(bundle_path(s.work)))
     report: dict = {"clips": [{"ok": r.ok, "detail": f"{r.failed_stage}: {r.reason}: {r.detail}"[:3000],
-                               "nodes": {k: v for k, v in r.context.items() if k.startswith("node:")},
+                               "nodes": dict(r.work.nodes),
                                "seconds": r.seconds} for r in results]}
     if all(r.ok for r in results):
         report["distill"] = distill_rounds(registry_uri, "synthetic-street-1", out.parent / "run")

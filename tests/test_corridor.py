@@ -76,7 +76,7 @@ def test_area_scales_with_the_body_radius():
 
 
 def test_pipeline_gate_writes_the_report_and_names_the_reason(tmp_path):
-    from vid2sim.factory.runtime.pipeline import check_corridor
+    from vid2sim.factory.runtime.steps.walkable import check_corridor
     from vid2sim.factory.runtime.stage_cache import StageError
 
     walk_dir = tmp_path / "walkable"

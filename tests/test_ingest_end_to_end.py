@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from vid2sim.factory.recon.config import preset as recon_preset
-from vid2sim.factory.runtime.pipeline import STAGES, preset
+from vid2sim.factory.runtime.pipeline import STEP_NAMES, preset
 from vid2sim.factory.runtime.stage_cache import MARKER
 from vid2sim.factory.synthetic import generate_street, render_video
 from vid2sim.factory.synthetic import preset as street_preset
@@ -52,4 +52,4 @@ def test_ingest_registers_the_good_clip_and_names_the_bad_one(tmp_path):
     scenes = Registry(str(tmp_path / "reg")).list()
     assert [s.scene_id for s in scenes] == [good[0]["scene_id"]]
     stage_dirs = tmp_path / "work" / good[0]["clip"]
-    assert sorted(p.parent.name for p in stage_dirs.glob("*/" + MARKER)) == sorted(n for n, _ in STAGES)
+    assert sorted(p.parent.name for p in stage_dirs.glob("*/" + MARKER)) == sorted(STEP_NAMES)

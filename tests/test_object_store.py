@@ -1,17 +1,24 @@
 """The work store on a real S3 endpoint (moto server) and a local folder: folders round-trip,
-the marker is written last, and a stage run on one node's scratch resumes on another's."""
+the marker is written last, and a step run by the runner on one node's scratch resumes on
+another's."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 from cluster_fixtures import s3_server
 
+from vid2sim.factory.ingest.clips import ClipSpec
+from vid2sim.factory.ingest.sources import Source
+from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
 from vid2sim.factory.runtime.object_store import MARKER, ObjectStore
-from vid2sim.factory.runtime.staging import OnStore, local_clip_dir
+from vid2sim.factory.runtime.runner import clip_work, run_step
 from vid2sim.factory.runtime.stage_cache import is_done, mark_done
+from vid2sim.factory.runtime.staging import local_clip_dir
+from vid2sim.factory.runtime.steps.base import Step, StepOutputs
 
 
 @pytest.fixture(scope="module")
@@ -55,55 +62,75 @@ def test_round_trip_with_marker_last(store, tmp_path):
     assert not store.exists("x/nope")
 
 
-def _count_stage(ctx: dict) -> dict:
-    """A real stage: cached by its marker; counts its runs in a file of its own output."""
-    out = Path(ctx["clip_dir"]) / "decode"
+@dataclass(frozen=True)
+class Written(StepOutputs):
+    """The folder of a test step."""
+
+
+@dataclass(frozen=True)
+class FromClip:
+    clip: ClipSpec
+
+
+@dataclass(frozen=True)
+class AfterCount:
+    count: Written
+
+
+def _count(conf: None, inputs: FromClip, out: Path) -> Written:
+    """A real step: cached by its marker; writes a file of its own output once."""
     if not is_done(out, "key-1"):
         out.mkdir(parents=True, exist_ok=True)
         (out / "frames.txt").write_text("frames")
-        mark_done(out, "decode", "key-1", {}, 0.0)
-    return {"decode_dir": str(out)}
+        mark_done(out, "count", "key-1", {}, 0.0)
+    return Written(out)
 
 
-def _read_stage(ctx: dict) -> dict:
-    out = Path(ctx["clip_dir"]) / "masks"
+def _read(conf: None, inputs: AfterCount, out: Path) -> Written:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "masks.txt").write_text(Path(ctx["decode_dir"], "frames.txt").read_text() + "+masks")
-    mark_done(out, "masks", "key-2", {}, 0.0)
-    return {"masks_dir": str(out)}
+    (out / "masks.txt").write_text((inputs.count.dir / "frames.txt").read_text() + "+masks")
+    mark_done(out, "read", "key-2", {}, 0.0)
+    return Written(out)
 
 
-def test_stages_on_two_scratch_dirs_share_only_the_store(s3, tmp_path, monkeypatch):
-    ctx = {"work_uri": s3.uri(f"w-{tmp_path.name}"), "clip_id": "clip0"}
-    monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-a"))
-    added = OnStore(_count_stage)(ctx)
-    assert added == {"decode_dir": "decode"}  # relative: valid on any node
-    monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-b"))
-    out = OnStore(_read_stage)({**ctx, **added})
-    node_b = local_clip_dir(ctx["work_uri"], "clip0")
-    assert str(tmp_path / "node-b") in str(node_b)
-    assert (node_b / out["masks_dir"] / "masks.txt").read_text() == "frames+masks"
-    store = ObjectStore(ctx["work_uri"])
-    assert store.read_bytes("clip0/masks/masks.txt") == b"frames+masks"
-    assert not (tmp_path / "node-a" / node_b.relative_to(tmp_path / "node-b") / "masks").exists()
-
-
-def _source_stage(ctx: dict) -> dict:
+def _source(conf: None, inputs: FromClip, out: Path) -> Written:
     """Records where the clip's source was found (it must be this node's own copy)."""
-    out = Path(ctx["clip_dir"]) / "decode"
     out.mkdir(parents=True, exist_ok=True)
-    (out / "source.txt").write_text(str(ctx["job"].spec.source.path))
-    mark_done(out, "decode", "k", {}, 0.0)
-    return {"decode_dir": str(out)}
+    (out / "source.txt").write_text(str(inputs.clip.source.path))
+    mark_done(out, "source", "k", {}, 0.0)
+    return Written(out)
 
 
-def test_uri_source_is_fetched_by_the_node_that_runs_the_stage(s3, tmp_path, monkeypatch):
+def _step(name: str, inputs: type, main) -> Step:
+    return Step(name, 1, inputs, Written, lambda conf, job: None, main)
+
+
+def _job(clip_id: str) -> ClipJob:
+    return ClipJob(ClipSpec(clip_id, Source("video", Path("v.mp4"), "v.mp4", "c" * 64), None, "g"), "s", "CC0")
+
+
+def test_steps_on_two_scratch_dirs_share_only_the_store(s3, tmp_path, monkeypatch):
+    work = clip_work(_job("clip0"), PipelineConfig(), s3.uri(f"w-{tmp_path.name}"))
+    monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-a"))
+    work = run_step(_step("count", FromClip, _count), work)
+    assert work.outputs["count"] == Written(Path("count"))  # relative: valid on any node
+    monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-b"))
+    work = run_step(_step("read", AfterCount, _read), work)
+    node_b = local_clip_dir(work.workdir, "clip0")
+    assert str(tmp_path / "node-b") in str(node_b)
+    assert (node_b / work.outputs["read"].dir / "masks.txt").read_text() == "frames+masks"
+    store = ObjectStore(work.workdir)
+    assert store.read_bytes("clip0/read/masks.txt") == b"frames+masks"
+    assert not (tmp_path / "node-a" / node_b.relative_to(tmp_path / "node-b") / "read").exists()
+
+
+def test_uri_source_is_fetched_by_the_node_that_runs_the_step(s3, tmp_path, monkeypatch):
     import shutil
 
     import pyarrow.fs as pafs
     from ingest_media import make_video
 
-    from vid2sim.factory.runtime.pipeline import clip_context, plan_jobs, preset, rows_from_inputs
+    from vid2sim.factory.runtime.pipeline import plan_jobs, preset, rows_from_inputs
 
     video = make_video(tmp_path / "v.mp4", n=20)
     fs, path = pafs.FileSystem.from_uri(s3.uri("videos/v.mp4"))
@@ -112,10 +139,10 @@ def test_uri_source_is_fetched_by_the_node_that_runs_the_stage(s3, tmp_path, mon
     jobs, failed = plan_jobs(rows_from_inputs([s3.uri("videos/v.mp4")], "CC0"), conf, tmp_path / "driver-cache")
     assert not failed and len(jobs) == 1
     shutil.rmtree(tmp_path / "driver-cache")  # the driver's copy is not on the worker node
-    ctx = clip_context(jobs[0], conf, 1, s3.uri(f"w-{tmp_path.name}"))
-    assert "clip_dir" not in ctx and ctx["work_uri"].startswith("s3://")
+    work = clip_work(jobs[0], conf, s3.uri(f"w-{tmp_path.name}"))
+    assert work.on_store and work.workdir.startswith("s3://")
     monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / "node-b"))
-    out = OnStore(_source_stage)(ctx)
-    store = ObjectStore(ctx["work_uri"])
-    used = store.read_bytes(f"{ctx['clip_id']}/{out['decode_dir']}/source.txt").decode()
+    work = run_step(_step("source", FromClip, _source), work)
+    store = ObjectStore(work.workdir)
+    used = store.read_bytes(f"{work.clip_id}/{work.outputs['source'].dir}/source.txt").decode()
     assert used.startswith(str(tmp_path / "node-b")) and Path(used).read_bytes() == video.read_bytes()

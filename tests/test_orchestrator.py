@@ -1,5 +1,6 @@
 """The Ray orchestrator on a real local Ray runtime: isolation of failures,
-retry of a dead worker, ordering of stages per clip."""
+retry of a dead worker, ordering of stages per clip. A stage takes the clip's state (here a
+dict) and returns the next one."""
 
 from __future__ import annotations
 
@@ -28,14 +29,14 @@ def local_ray():
 def _write(ctx: dict) -> dict:
     path = Path(ctx["root"]) / f"{ctx['clip']}.txt"
     path.write_text("a")
-    return {"written": str(path)}
+    return {**ctx, "written": str(path)}
 
 
 def _append_or_fail(ctx: dict) -> dict:
     if ctx["clip"] == "bad":
         raise StageError("append", "corrupt_video", f"{ctx['clip']} cannot be decoded")
     Path(ctx["written"]).write_text(Path(ctx["written"]).read_text() + "b")
-    return {"done": True}
+    return {**ctx, "done": True}
 
 
 def _die_once(ctx: dict) -> dict:
@@ -43,7 +44,7 @@ def _die_once(ctx: dict) -> dict:
     if not marker.exists():
         marker.write_text("x")
         os._exit(1)  # the worker process dies: Ray must retry the task
-    return {"survived": True}
+    return {**ctx, "survived": True}
 
 
 def test_failed_clip_is_isolated_and_named(tmp_path):
@@ -64,7 +65,7 @@ def test_dead_worker_is_retried(tmp_path):
     results = run_clips([("x", {"clip": "x", "root": str(tmp_path)})], [StageSpec("die", _die_once)],
                         max_retries=2)
     assert results[0].ok, results[0].detail
-    assert results[0].context["survived"] is True
+    assert results[0].work["survived"] is True
 
 
 def test_commit_hook_error_marks_clip_failed(tmp_path):

@@ -14,7 +14,8 @@ import ray
 from vid2sim.factory.ingest.clips import ClipSpec
 from vid2sim.factory.runtime.orchestrator import ensure_ray, run_clips
 from vid2sim.factory.runtime.stage_cache import MARKER
-from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, STAGES, StageSpec
+from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig, bundle_path, clip_work, stage_specs
+from vid2sim.factory.runtime.steps import metric
 from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.ingest.sources import resolve_source
 from vid2sim.factory.synthetic.config import preset as street_preset
@@ -47,12 +48,11 @@ def _run(street: Path, work: Path, registry: Registry):
     source = resolve_source(street / "video.mp4")
     job = ClipJob(ClipSpec("clip0", source, None, "street-1", 1.5, {"city": "synthetic"}), "synthetic-street-1",
                   "CC0")
-    ctx = {"job": job, "conf": conf, "scene_id": job.scene_id, "cpus": 2, "clip_dir": str(work / "clip0"),
-           "posed_dir": str(street)}
-    stages = [StageSpec(name, fn, num_cpus=2) for name, fn in STAGES if name in BACK_HALF]
+    start = clip_work(job, conf, work, 2, metric=metric.Outputs(street))  # enters posed, past metric
+    stages = [s for s in stage_specs(2) if s.name in BACK_HALF]
     versions = []
-    results = run_clips([("clip0", ctx)], stages,
-                        on_clip_done=lambda s: versions.append(registry.add(s.context["bundle_dir"]).version))
+    results = run_clips([("clip0", start)], stages,
+                        on_clip_done=lambda s: versions.append(registry.add(bundle_path(s.work)).version))
     return results[0], versions
 
 
@@ -66,7 +66,7 @@ def test_back_half_commits_a_valid_scene_and_resumes(street, tmp_path):
     registry = Registry(str(tmp_path / "registry"))
     result, versions = _run(street, tmp_path / "work", registry)
     assert result.ok, f"{result.failed_stage}: {result.reason}: {result.detail}"
-    info = validate_bundle(result.context["bundle_dir"])
+    info = validate_bundle(bundle_path(result.work))
     assert info.scene_id == "synthetic-street-1"
     assert info.num_splats > 100
     scenes = registry.list()

@@ -95,7 +95,8 @@ def test_an_assembled_bundle_records_the_robot_the_envs_drive(tmp_path, monkeypa
     from vid2sim.factory.geometry import meshing, walkable
     from vid2sim.factory.ingest.clips import ClipSpec
     from vid2sim.factory.ingest.sources import Source
-    from vid2sim.factory.runtime.bundle_assembly import assemble_bundle
+    from vid2sim.factory.runtime.steps import bundle, meshing as meshing_step, metric, recon
+    from vid2sim.factory.runtime.steps import walkable as walkable_step
     from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig
     from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
     from vid2sim.formats.bundle import validate_bundle
@@ -124,9 +125,9 @@ def test_an_assembled_bundle_records_the_robot_the_envs_drive(tmp_path, monkeypa
         dirs["walkable"] / walkable.OUTPUTS.grid)
     source = Source("video", tmp_path / "v.mp4", "file:///v.mp4", "b" * 64)
     job = ClipJob(ClipSpec("clip0", source, (0.0, 0.4), "g"), "robot-spec-1", "CC0")
-    ctx = {"job": job, "conf": PipelineConfig(), "posed_dir": str(posed),
-           **{f"{k}_dir": str(d) for k, d in dirs.items()}}
-    info = validate_bundle(assemble_bundle(ctx, tmp_path / "bundle"))
+    inputs = bundle.Inputs(metric.Outputs(posed), recon.Outputs(dirs["recon"]), meshing_step.Outputs(dirs["meshing"]),
+                           walkable_step.Outputs(dirs["walkable"]))
+    info = validate_bundle(bundle.main(bundle.configure(PipelineConfig(), job), inputs, tmp_path / "bundle").scene)
     recorded = RobotSpec.from_dict(info.scene["robot"])
     assert recorded == ROBOT == _robot_from_envs(RobotConfig(), CameraConfig())
     assert sorted(f.name for f in fields(RobotSpec)) == sorted(info.scene["robot"])

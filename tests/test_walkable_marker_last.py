@@ -1,11 +1,12 @@
 """The walkable stage's marker is the last file it writes: the corridor report (corridor.json)
 is written before `stage.json`, and the corridor gate after it writes nothing, on a fresh run,
 on a gated run and on a cached re-run. Small analytic inputs (a ground plane, a box beside the
-walk), the pipeline's own stage function; no Ray."""
+walk), the walkable step run by the pipeline's runner; no Ray."""
 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -14,15 +15,24 @@ import trimesh
 
 from vid2sim.factory.evaluation.corridor import CorridorConfig
 from vid2sim.factory.geometry import meshing, walkable
-from vid2sim.factory.runtime import pipeline
-from vid2sim.factory.runtime.pipeline import CORRIDOR_REPORT, PipelineConfig, stage_walkable
+from vid2sim.factory.ingest.clips import ClipSpec
+from vid2sim.factory.ingest.sources import Source
+from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
+from vid2sim.factory.runtime.runner import ClipWork, clip_work, run_step
 from vid2sim.factory.runtime.stage_cache import MARKER, StageError
+from vid2sim.factory.runtime.steps import STEPS
+from vid2sim.factory.runtime.steps import meshing as meshing_step
+from vid2sim.factory.runtime.steps import metric
+from vid2sim.factory.runtime.steps.walkable import CORRIDOR_REPORT
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
 
 PATH = np.array([[x, 0.0, 1.5] for x in np.linspace(-3.0, 3.0, 13)])  # camera path along +x
 
 
-def _inputs(root: Path) -> dict:
+WALKABLE = next(s for s in STEPS if s.name == "walkable")
+
+
+def _work(root: Path, conf: PipelineConfig) -> ClipWork:
     """A posed clip walking PATH, and a meshing folder: ground plane + a box 1.2 m to the side."""
     K = np.array([[50.0, 0, 32], [0, 50.0, 18], [0, 0, 1]])
     frames = []
@@ -40,7 +50,14 @@ def _inputs(root: Path) -> dict:
     box = trimesh.creation.box(extents=(1.0, 0.6, 1.0))
     box.apply_translation((0.0, 1.2, 0.5))
     box.export(mesh_dir / meshing.OUTPUTS.collision)
-    return {"posed_dir": str(posed), "meshing_dir": str(mesh_dir), "clip_dir": str(root / "clip")}
+    job = ClipJob(ClipSpec("clip", Source("video", root / "v.mp4", "file:///v.mp4", "a" * 64), None, "g"), "s", "CC0")
+    return clip_work(job, conf, root, metric=metric.Outputs(posed), meshing=meshing_step.Outputs(mesh_dir))
+
+
+def stage_walkable(work: ClipWork) -> Path:
+    """The walkable step's folder after the runner ran it on the clip."""
+    out = run_step(WALKABLE, work).outputs["walkable"]
+    return out.under(Path(work.workdir) / work.clip_id).dir
 
 
 def _state(folder: Path) -> dict[str, tuple[int, int]]:
@@ -50,9 +67,8 @@ def _state(folder: Path) -> dict[str, tuple[int, int]]:
 
 @pytest.fixture
 def recorded(monkeypatch):
-    """Runs stage_walkable without Ray; records the folder's files at the moment the marker is
-    written (the walkable module's `mark_done`)."""
-    monkeypatch.setattr(pipeline, "_threads", lambda ctx: 1)
+    """Records the folder's files at the moment the marker is written (the walkable module's
+    `mark_done`)."""
     at_marker: list[dict] = []
     real = walkable.mark_done
 
@@ -74,34 +90,33 @@ def _check_marker_last(walk_dir: Path, before_marker: dict) -> None:
 
 
 def test_the_marker_is_the_last_file_the_walkable_stage_writes(tmp_path, recorded):
-    ctx = {**_inputs(tmp_path), "conf": PipelineConfig()}
-    out = stage_walkable(ctx)
-    walk_dir = Path(out["walkable_dir"])
-    assert len(recorded) == 1
+    work = _work(tmp_path, PipelineConfig())
+    walk_dir = stage_walkable(work)
+    assert walk_dir == tmp_path / "clip" / "walkable" and len(recorded) == 1
     _check_marker_last(walk_dir, recorded[0])
     report = json.loads((walk_dir / CORRIDOR_REPORT).read_text())
     assert report["passed"] and report["walkable_fraction"] == 1.0
     # a cached re-run writes nothing at all
     done = _state(walk_dir)
-    assert stage_walkable(ctx) == out and _state(walk_dir) == done and len(recorded) == 1
+    assert stage_walkable(work) == walk_dir and _state(walk_dir) == done and len(recorded) == 1
 
 
 def test_a_gated_clip_keeps_the_marker_last_and_is_gated_again_from_the_cache(tmp_path, recorded):
     strict = CorridorConfig(gate_min_walkable_fraction=1.01)  # no path can pass
-    ctx = {**_inputs(tmp_path), "conf": PipelineConfig(corridor=strict)}
+    work = _work(tmp_path, PipelineConfig(corridor=strict))
     with pytest.raises(StageError) as e:
-        stage_walkable(ctx)
+        stage_walkable(work)
     assert e.value.stage == "walkable" and e.value.reason == "corridor_not_walkable"
-    walk_dir = Path(ctx["clip_dir"]) / "walkable"
+    walk_dir = tmp_path / "clip" / "walkable"
     assert len(recorded) == 1
     _check_marker_last(walk_dir, recorded[0])
     assert json.loads((walk_dir / CORRIDOR_REPORT).read_text())["passed"] is False
     done = _state(walk_dir)
     with pytest.raises(StageError) as again:
-        stage_walkable(ctx)
+        stage_walkable(work)
     assert again.value.reason == "corridor_not_walkable" and _state(walk_dir) == done and len(recorded) == 1
     # the corridor config decides corridor.json, a file of the stage: changing it reruns the stage
-    out = stage_walkable({**ctx, "conf": PipelineConfig()})
+    assert stage_walkable(replace(work, conf=PipelineConfig())) == walk_dir
     assert len(recorded) == 2
-    _check_marker_last(Path(out["walkable_dir"]), recorded[1])
+    _check_marker_last(walk_dir, recorded[1])
     assert json.loads((walk_dir / CORRIDOR_REPORT).read_text())["passed"] is True

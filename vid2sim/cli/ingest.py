@@ -48,7 +48,7 @@ def ingest_command(
     as_json: bool = typer.Option(False, "--json", help="Print the report as JSON."),
 ) -> None:
     """Turn videos into registered, simulation-ready scenes (each clip's stages run as Ray tasks)."""
-    from vid2sim.factory.runtime.pipeline import STAGES, PipelineConfig, ingest, preset as make_preset
+    from vid2sim.factory.runtime.pipeline import STEP_NAMES, PipelineConfig, ingest, preset as make_preset
     from vid2sim.factory.runtime.progress import IngestProgress
     from vid2sim.factory.runtime.stage_cache import StageError
 
@@ -64,7 +64,7 @@ def ingest_command(
     holder: dict = {}
 
     def on_plan(ids: list[str]) -> None:
-        progress = IngestProgress(ids, [n for n, _ in STAGES], console=console, enabled=not as_json)
+        progress = IngestProgress(ids, list(STEP_NAMES), console=console, enabled=not as_json)
         holder["progress"] = progress.__enter__()
 
     def on_update(state) -> None:

@@ -1,2 +1,3 @@
-"""Runtime: pipeline stage chain, Ray orchestrator, stage cache, progress, bundle assembly, demo,
-and the work store (local folder or object store) that stage folders live in."""
+"""Runtime: the factory's typed steps (`steps/`) and their one runner, the pipeline driver, Ray
+orchestrator, stage cache, progress, demo, and the work store (local folder or object store)
+that step folders live in."""

@@ -3,8 +3,9 @@
 1. Generate a procedural street and render a hand-held walking video with ground truth.
 2. Ingest the video with the `fast` preset on an embedded local Ray runtime
    (decode -> masks -> SfM -> metric frame -> splats -> mesh/walkable -> bundle -> commit).
-3. Print the registry listing, the scene's metrics and errors against ground truth,
-   and write a preview image.
+3. Print the registry listing and a summary of the scene's metrics and its errors against
+   ground truth (all figures in WORKDIR/summary.json), and write a preview image.
+`vid2sim demo` then drives the scripted expert through the scene (`vid2sim.cli.demo`).
 """
 
 from __future__ import annotations
@@ -20,9 +21,9 @@ from rich.table import Table
 
 
 def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed: int = 0) -> dict:
-    from vid2sim.factory.runtime.pipeline import ingest, preset
+    from vid2sim.factory.runtime.pipeline import STEP_NAMES, bundle_path, ingest, preset
     from vid2sim.factory.runtime.progress import IngestProgress
-    from vid2sim.factory.runtime.pipeline import STAGES
+    from vid2sim.factory.runtime.runner import local_outputs
     from vid2sim.factory.synthetic.config import preset as street_preset
     from vid2sim.factory.synthetic.make_street import main as make_street
     from vid2sim.registry import Registry
@@ -42,7 +43,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     report = ingest([str(video)], registry, workdir=work / "clips", conf=preset("fast"),
                     licence="CC0-synthetic", capture_height=street.capture_height,
                     on_plan=lambda ids: holder.setdefault(
-                        "p", IngestProgress(ids, [n for n, _ in STAGES], console=console).__enter__()),
+                        "p", IngestProgress(ids, list(STEP_NAMES), console=console).__enter__()),
                     on_update=lambda s: holder["p"].update(s) if "p" in holder else None)
     if "p" in holder:
         holder["p"].__exit__(None, None, None)
@@ -61,7 +62,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
         table.add_row(rec.scene_id, str(rec.version), str(rec.num_frames), f"{rec.num_splats:,}",
                       f"{rec.walkable_area_m2:.1f}", f"{rec.metrics.get('recon.psnr', float('nan')):.2f}")
     console.print(table)
-    scene_dir = Path(result.context["bundle_dir"])
+    scene_dir = bundle_path(result.work)
     metrics = json.loads((scene_dir / "scene.json").read_text())["metrics"]
     import trimesh
 
@@ -69,14 +70,37 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     from vid2sim.factory.evaluation.synthetic_gt import scene_errors
     from vid2sim.formats.walkable import load_walkable
 
-    gt = scene_errors(PosedClip.load(Path(result.context["posed_dir"])), synth_dir,
+    gt = scene_errors(PosedClip.load(local_outputs(result.work, "metric").dir), synth_dir,
                       trimesh.load(scene_dir / "collision.ply", force="mesh"),
                       load_walkable(scene_dir / "walkable.npz"))
     preview = work / "preview.png"
     shutil.copyfile(scene_dir / "preview.png", preview)
-    summary = {"scene_id": result.context["scene_id"], "seconds": round(time.perf_counter() - t0, 1),
+    summary = {"scene_id": result.work.job.scene_id, "seconds": round(time.perf_counter() - t0, 1),
                "stage_seconds": {k: round(v, 1) for k, v in result.seconds.items()},
                "metrics": {k: v for k, v in metrics.items() if isinstance(v, (int, float))},
                "ground_truth": gt, "preview": str(preview)}
-    console.print_json(json.dumps(summary, default=float))
+    (work / "summary.json").write_text(json.dumps(summary, indent=2, default=float))
+    console.print(summary_table(summary))
+    console.print(f"all figures: {work / 'summary.json'}")
     return summary
+
+
+SUMMARY_ROWS = (("metrics", "recon.psnr", "held-out PSNR (dB)"),
+                ("ground_truth", "ate_pct_of_path", "pose ATE (% of path)"),
+                ("ground_truth", "metric_scale_error_pct", "metric scale error (%)"),
+                ("ground_truth", "collision_accuracy_m", "collision mesh accuracy (m)"),
+                ("ground_truth", "walkable_iou", "walkable map IoU"),
+                ("metrics", "corridor.walkable_fraction", "walked path walkable"))
+
+
+def summary_table(summary: dict) -> Table:
+    """The demo's headline figures: wall time, reconstruction and errors against ground truth."""
+    table = Table(title=f"demo scene {summary['scene_id']}: {summary['seconds']:.0f} s")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for group, key, label in SUMMARY_ROWS:
+        v = summary.get(group, {}).get(key)
+        if isinstance(v, (int, float)):
+            table.add_row(label, f"{v:.4g}")
+    table.add_row("preview", str(summary["preview"]))
+    return table

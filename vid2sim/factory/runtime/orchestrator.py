@@ -2,10 +2,11 @@
 
 The driver keeps one state machine per clip: when a clip's stage finishes, its
 next stage is submitted; `ray.wait` multiplexes all clips, so clips advance
-independently and a clip that fails stops alone. Stage outputs are cached by
-the stage itself (see `stage_cache.py`), so a re-run resumes after the last finished
-stage. Ray retries a task whose worker died (`max_retries`); a StageError is a
-verdict about the input and is not retried.
+independently and a clip that fails stops alone. A stage takes the clip's state
+(for the pipeline, `runner.ClipWork`) and returns its next state. Stage outputs are
+cached (see `stage_cache.py`), so a re-run resumes after the last finished stage.
+Ray retries a task whose worker died (`max_retries`); a StageError is a verdict about
+the input and is not retried.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from __future__ import annotations
 import time
 import traceback
 from dataclasses import dataclass, field
-from typing import Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import ray
 
@@ -24,13 +25,12 @@ from vid2sim.factory.runtime.stage_cache import StageError
 class StageSpec:
     """One step of a clip's chain.
 
-    `fn(context: dict) -> dict` runs inside a Ray worker; it reads what earlier
-    stages put into the context and returns the keys it adds. `resources` are
-    Ray hints (num_cpus, num_gpus, memory).
+    `fn(state) -> state` runs inside a Ray worker: it takes the clip's state as the earlier
+    stages left it and returns the next one. `num_cpus` / `num_gpus` are Ray's reservations.
     """
 
     name: str
-    fn: Callable[[dict], dict]
+    fn: Callable[[Any], Any]
     num_cpus: float = 1.0
     num_gpus: float = 0.0
 
@@ -38,7 +38,7 @@ class StageSpec:
 @dataclass
 class ClipState:
     clip_id: str
-    context: dict
+    work: Any
     stage_index: int = 0
     status: str = "pending"  # pending | running | done | failed
     stage: str = ""
@@ -55,16 +55,15 @@ class ClipResult:
     failed_stage: str
     reason: str
     detail: str
-    context: dict
+    work: Any  # the clip's last state (None for a clip that never started)
     seconds: dict
 
 
-def _run_stage(fn: Callable[[dict], dict], stage_name: str, context: dict) -> dict:
+def _run_stage(fn: Callable[[Any], Any], stage_name: str, work: Any) -> dict:
     """Executed in a Ray worker: run the stage, turn errors into a verdict record."""
     t0 = time.perf_counter()
     try:
-        added = fn(context) or {}
-        return {"ok": True, "added": added, "seconds": time.perf_counter() - t0}
+        return {"ok": True, "work": fn(work), "seconds": time.perf_counter() - t0}
     except StageError as e:
         return {"ok": False, "reason": e.reason, "detail": e.detail or str(e),
                 "seconds": time.perf_counter() - t0}
@@ -107,14 +106,14 @@ ensure_ray = init_ray  # the earlier name of `init_ray`, kept for existing calle
 
 
 def run_clips(
-    clips: Sequence[tuple[str, dict]],
+    clips: Sequence[tuple[str, Any]],
     stages: Sequence[StageSpec],
     *,
     max_retries: int = 2,
     on_update: Optional[Callable[[ClipState], None]] = None,
     on_clip_done: Optional[Callable[[ClipState], None]] = None,
 ) -> list[ClipResult]:
-    """Push each (clip_id, context) through `stages`; returns one result per clip.
+    """Push each (clip_id, state) through `stages`; returns one result per clip.
 
     `on_update` is called in the driver whenever a clip changes stage or status;
     `on_clip_done` when a clip finished all stages (e.g. to commit it), and may
@@ -122,7 +121,7 @@ def run_clips(
     """
     init_ray()  # a local runtime unless Ray is already initialised
     remote = ray.remote(_run_stage)
-    states = {cid: ClipState(cid, dict(ctx)) for cid, ctx in clips}
+    states = {cid: ClipState(cid, work) for cid, work in clips}
     inflight: dict[ray.ObjectRef, str] = {}
 
     def submit(state: ClipState) -> None:
@@ -130,7 +129,7 @@ def run_clips(
         state.status, state.stage, state.started = "running", spec.name, time.perf_counter()
         ref = remote.options(num_cpus=spec.num_cpus, num_gpus=spec.num_gpus,
                              max_retries=max_retries, name=f"{spec.name}:{state.clip_id}"
-                             ).remote(spec.fn, spec.name, state.context)
+                             ).remote(spec.fn, spec.name, state.work)
         inflight[ref] = state.clip_id
         if on_update:
             on_update(state)
@@ -154,7 +153,7 @@ def run_clips(
         if not out["ok"]:
             fail(state, out["reason"], out["detail"])
             continue
-        state.context.update(out["added"])
+        state.work = out["work"]
         state.stage_index += 1
         if state.stage_index < len(stages):
             submit(state)
@@ -169,4 +168,4 @@ def run_clips(
         except StageError as e:
             fail(state, e.reason, e.detail or str(e))
     return [ClipResult(s.clip_id, s.status == "done", s.stage if s.status == "failed" else "",
-                       s.reason, s.detail, s.context, s.seconds) for s in states.values()]
+                       s.reason, s.detail, s.work, s.seconds) for s in states.values()]
