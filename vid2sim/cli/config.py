@@ -7,7 +7,8 @@ from typing import List, Optional
 
 import typer
 
-from vid2sim.cli.settings import SECTIONS, SettingError, describe_section, format_rows
+from vid2sim.cli.errors import InputError
+from vid2sim.cli.settings import SECTIONS, describe_section, format_rows
 
 app = typer.Typer(help="Inspect the configs the commands run with.", no_args_is_help=True)
 
@@ -31,19 +32,11 @@ def show(
 
     The paths are what `--set PATH=VALUE` takes on `vid2sim ingest`, `vid2sim train` and `vid2sim eval policy`."""
     if section is not None and section not in SECTIONS:
-        typer.echo(f"error: unknown config section {section!r} ({' | '.join(SECTIONS)})", err=True)
-        raise typer.Exit(2)
+        raise InputError("SECTION", f"unknown config section {section!r} ({' | '.join(SECTIONS)})")
     names = [section] if section else list(SECTIONS)
     if len(names) > 1 and sets:
-        typer.echo("error: --set needs a section (e.g. `vid2sim config show ingest --set recon.iterations=500`)",
-                   err=True)
-        raise typer.Exit(2)
-    try:
-        rows = {name: describe_section(name, preset if name == "ingest" or section else None, sets)
-                for name in names}
-    except SettingError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+        raise InputError("--set", "needs a section (e.g. `vid2sim config show ingest --set recon.iterations=500`)")
+    rows = {name: describe_section(name, preset if name == "ingest" or section else None, sets) for name in names}
     if as_json:
         data = {name: {"preset": (preset or "fast") if name == "ingest" else None,
                        "fields": [r.to_json() for r in section_rows]} for name, section_rows in rows.items()}

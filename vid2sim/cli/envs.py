@@ -27,15 +27,10 @@ def record(
     import vid2sim.envs  # noqa: F401  (registers the env ids)
     from vid2sim.envs.expert import PurePursuitExpert
     from vid2sim.envs.recording import record_episodes
-    from vid2sim.envs.scenes import SceneError
     from vid2sim.registry.store import default_root
 
-    try:
-        env = gymnasium.make(f"vid2sim/{task}-v0", registry=registry or default_root(), scenes=scene,
-                             variant=variant, training=False)
-    except (SceneError, ValueError) as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+    env = gymnasium.make(f"vid2sim/{task}-v0", registry=registry or default_root(), scenes=scene,
+                         variant=variant, training=False)
     paths = record_episodes(env, out, episodes, PurePursuitExpert(), seed=seed)
     env.close()
     for p in paths:

@@ -29,13 +29,9 @@ def poses(
     from rich.console import Console
     from rich.table import Table
 
-    from vid2sim.factory.evaluation.poses import PoseEvalError, evaluate_paths
+    from vid2sim.factory.evaluation.poses import evaluate_paths
 
-    try:
-        rep = evaluate_paths(estimate, gt, gt_format, est_format, fps=fps, stride=stride)
-    except PoseEvalError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+    rep = evaluate_paths(estimate, gt, gt_format, est_format, fps=fps, stride=stride)
     if as_json:
         typer.echo(json.dumps(rep, indent=2))
         return

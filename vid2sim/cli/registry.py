@@ -1,14 +1,14 @@
 """`vid2sim registry ...`: the registry operations on the command line.
 
 Every command takes `--registry ROOT` (default $VID2SIM_REGISTRY or ./vid2sim-registry);
-commands that report data take `--json`. Errors print one line and exit 2 (verify: exit 1).
+commands that report data take `--json`. Errors follow the CLI's convention (`vid2sim.cli.errors`:
+one line, exit 2); `verify` exits 1 when it finds problems.
 """
 
 from __future__ import annotations
 
 import json
-from functools import wraps
-from typing import Any, Callable, List, Optional
+from typing import Any, List, Optional
 
 import typer
 
@@ -25,34 +25,6 @@ def _open(root: Optional[str]):
     from vid2sim.registry.store import Registry
 
     return Registry(root)
-
-
-def _fail(msg: str, code: int = 2) -> None:
-    typer.secho(f"error: {msg}", fg=typer.colors.RED, err=True)
-    raise typer.Exit(code)
-
-
-def handles_errors(fn: Callable) -> Callable:
-    """Turn expected errors (bad bundle, unknown scene, bad query...) into one line + exit 2."""
-
-    @wraps(fn)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        from vid2sim.formats.errors import BundleError
-        from vid2sim.registry.split import SplitError
-        from vid2sim.registry.store import RegistryError
-
-        try:
-            return fn(*args, **kwargs)
-        except (BundleError, RegistryError, SplitError, ValueError, FileNotFoundError) as e:
-            msg = str(e)
-        # Exit outside the except block: a live traceback would keep Delta/Arrow objects alive
-        # until interpreter teardown, where their native threads can abort the process.
-        import gc
-
-        gc.collect()
-        _fail(msg)
-
-    return wrapper
 
 
 def _echo_json(obj: Any) -> None:
@@ -81,7 +53,6 @@ def _record_out(rec, as_json: bool, title: str) -> None:
 
 
 @app.command()
-@handles_errors
 def add(bundle_dir: str = typer.Argument(..., help="Scene bundle folder."),
         registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Validate a bundle, store its artifacts and commit a new scene version."""
@@ -94,7 +65,6 @@ def add(bundle_dir: str = typer.Argument(..., help="Scene bundle folder."),
 
 
 @app.command("list")
-@handles_errors
 def list_(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt,
           all_: bool = typer.Option(False, "--all", help="Include deprecated scenes.")) -> None:
     """Latest version of each scene (optionally as of an older registry version or time)."""
@@ -106,7 +76,6 @@ def list_(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of:
 
 
 @app.command()
-@handles_errors
 def show(ref: str = typer.Argument(..., help="SCENE or SCENE@VERSION"),
          registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """One scene version with metrics and artifacts."""
@@ -132,7 +101,6 @@ def show(ref: str = typer.Argument(..., help="SCENE or SCENE@VERSION"),
 
 
 @app.command()
-@handles_errors
 def history(scene: Optional[str] = typer.Argument(None, help="Scene id (default: all scenes)."),
             registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Every version (of one scene, or all, in commit order)."""
@@ -144,7 +112,6 @@ def history(scene: Optional[str] = typer.Argument(None, help="Scene id (default:
 
 
 @app.command()
-@handles_errors
 def tag(scene: str, tags: List[str] = typer.Argument(..., help="Tags to add."),
         registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Add tags (a new scene version)."""
@@ -152,7 +119,6 @@ def tag(scene: str, tags: List[str] = typer.Argument(..., help="Tags to add."),
 
 
 @app.command()
-@handles_errors
 def untag(scene: str, tags: List[str] = typer.Argument(..., help="Tags to remove."),
           registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Remove tags (a new scene version)."""
@@ -160,7 +126,6 @@ def untag(scene: str, tags: List[str] = typer.Argument(..., help="Tags to remove
 
 
 @app.command()
-@handles_errors
 def deprecate(scene: str, reason: str = typer.Option(..., "--reason", help="Why (stored)."),
               registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:
     """Mark a scene deprecated (a new version; excluded from list and split)."""
@@ -181,7 +146,6 @@ def _parse_min(items: List[str]) -> dict[str, float]:
 
 
 @app.command()
-@handles_errors
 def split(seed: int = typer.Option(0, "--seed"),
           test_fraction: float = typer.Option(0.2, "--test-fraction",
                                               help="Share of scenes held out (whole source videos)."),
@@ -204,7 +168,6 @@ def split(seed: int = typer.Option(0, "--seed"),
 
 
 @app.command()
-@handles_errors
 def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
            repair: bool = typer.Option(False, "--repair", help="Rewrite missing/corrupt blobs from --from folders."),
            from_: List[str] = typer.Option([], "--from", help="Bundle folder holding good copies (repeat).")) -> None:
@@ -228,7 +191,6 @@ def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 
 @app.command()
-@handles_errors
 def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
        grace_seconds: float = typer.Option(3600.0, "--grace-seconds",
                                            help="Keep unreferenced blobs younger than this."),
@@ -245,7 +207,6 @@ def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 
 @app.command()
-@handles_errors
 def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
             vacuum_hours: Optional[int] = typer.Option(
                 None, "--vacuum-hours", min=0,
@@ -263,7 +224,6 @@ def compact(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 
 @app.command()
-@handles_errors
 def query(sql: str = typer.Argument(..., help="DuckDB SQL over tables `scenes` (all versions) and `latest`."),
           registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt,
           max_rows: int = typer.Option(1000, "--max-rows", min=1, help="Print at most this many rows."),
@@ -291,7 +251,6 @@ def query(sql: str = typer.Argument(..., help="DuckDB SQL over tables `scenes` (
 
 
 @app.command()
-@handles_errors
 def checkout(ref: str = typer.Argument(..., help="SCENE or SCENE@VERSION"),
              dest: Optional[str] = typer.Option(None, "--dest", help="Folder (default ./vid2sim-checkouts/SCENE@V)."),
              registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt) -> None:

@@ -534,15 +534,9 @@ def _apply_sets(config: Any, sets: Optional[Sequence[str]], prefix: str = "") ->
 
 
 def apply_or_exit(config: Any, sets: Optional[Sequence[str]], apply: Any = None) -> Any:
-    """`apply(config, sets)` (default `apply_overrides`) for a command: a bad override prints
-    "error: ..." on stderr and exits with code 2."""
-    import typer
-
-    try:
-        return (apply or apply_overrides)(config, sets)
-    except SettingError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2) from None
+    """`apply(config, sets)` (default `apply_overrides`) for a command: a bad override raises
+    SettingError, which the CLI reports by its error convention (one line, exit 2)."""
+    return (apply or apply_overrides)(config, sets)
 
 
 # ------------------------------------------------------------------ the command line's configs

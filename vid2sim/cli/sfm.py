@@ -3,13 +3,27 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 from typing import Optional
 
 import typer
 
+from vid2sim.cli.errors import InputError
+
 app = typer.Typer(help="Structure from motion and the metric, gravity-aligned frame.",
                   no_args_is_help=True)
+
+
+def _floats(text: str) -> list[float]:
+    """--camera-params: comma-separated finite numbers."""
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise InputError("--camera-params", f"expected comma-separated numbers, got {text!r}") from None
+    if not all(math.isfinite(v) for v in values):
+        raise InputError("--camera-params", f"values must be finite, got {text!r}")
+    return values
 
 
 @app.command("run")
@@ -27,15 +41,10 @@ def run(
     """SIFT + sequential matching + global mapper (incremental fallback) with a quality gate."""
     from vid2sim.factory.sfm import sfm
     from vid2sim.factory.sfm.camera_model import LensHint
-    from vid2sim.factory.runtime.stage_cache import StageError
 
-    params = [float(v) for v in camera_params.split(",") if v.strip()]
-    conf = sfm.preset(preset, camera_model=camera_model, camera_params=params, lens=LensHint(wide=wide))
-    try:
-        out_dir = sfm.main(conf, images, masks, out)
-    except StageError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+    conf = sfm.preset(preset, camera_model=camera_model, camera_params=_floats(camera_params),
+                      lens=LensHint(wide=wide))
+    out_dir = sfm.main(conf, images, masks, out)
     q = sfm.load_quality(out_dir)
     typer.echo(json.dumps(q, indent=2) if as_json else
                f"{out_dir}: {q['num_registered']}/{q['num_frames']} registered, "
@@ -51,13 +60,8 @@ def metric_cmd(
 ) -> None:
     """Ground plane -> z up, ground z = 0, metric scale; writes a PosedClip."""
     from vid2sim.factory.sfm import metric
-    from vid2sim.factory.runtime.stage_cache import StageError
 
-    try:
-        out_dir = metric.main(metric.MetricConfig(capture_height_m=height, gps_csv=gps_csv), sfm_dir, out)
-    except StageError as e:
-        typer.echo(f"error: {e}", err=True)
-        raise typer.Exit(2)
+    out_dir = metric.main(metric.MetricConfig(capture_height_m=height, gps_csv=gps_csv), sfm_dir, out)
     info = json.loads((out_dir / "frame.json").read_text())
     typer.echo(f"{out_dir}: scale from {info['scale_source']} ({info['scale']:.4f}), plane inliers "
                f"{info['plane_inliers']}, residual {info['plane_residual_rms_m']:.3f} m")

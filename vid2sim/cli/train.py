@@ -11,6 +11,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from vid2sim.cli.errors import InputError
 from vid2sim.cli.settings import apply_or_exit
 from vid2sim.training.actions import check_map
 from vid2sim.training.config import METHODS, DistillConfig, SACConfig, TrainConfig
@@ -83,9 +84,8 @@ def _refuse_changes_on_resume(ctx: typer.Context, run_dir: str) -> None:
     if given:
         opts = {p.name: p.opts[0] for p in ctx.command.params if getattr(p, "opts", None)}
         flags = ", ".join(opts.get(name, name) for name in given)
-        typer.echo(f"error: {flags} refused with --resume: {run_dir} keeps its recorded config "
-                   "(config.json); only --steps may change", err=True)
-        raise typer.Exit(2)
+        raise InputError(flags, f"refused with --resume: {run_dir} keeps its recorded config (config.json); "
+                                "only --steps may change")
 
 
 def train_command(
