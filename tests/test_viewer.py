@@ -131,3 +131,13 @@ def test_bad_traces_are_named(tmp_path) -> None:
     (tmp_path / "r.json").write_text(json.dumps({"videos": []}))
     with pytest.raises(EpisodeInputError, match="recorded no episodes"):
         resolve_episode(tmp_path / "r.json")
+
+
+def test_demo_prints_viewer_commands_that_parse(tmp_path) -> None:
+    import shlex
+
+    from vid2sim.cli.demo import viewer_commands
+
+    cmds = viewer_commands(str(tmp_path / "my reg"), "video-abc-0-10s", tmp_path / "ep.trace.json")
+    assert shlex.split(cmds[0])[1:] == ["view", "video-abc-0-10s", "--registry", str(tmp_path / "my reg")]
+    assert shlex.split(cmds[1])[1:4] == ["view", "--episode", str(tmp_path / "ep.trace.json")]

@@ -1,21 +1,17 @@
 """`vid2sim` command line: one typer sub-app per subsystem.
 
 Every command that reports data takes `--json`. Only commands that work are registered.
-User errors follow one convention (`vid2sim.cli.errors`): exit 2, one line naming the input.
 """
 
 from __future__ import annotations
 
 import typer
 
-from vid2sim.cli.errors import ConventionGroup
-
 app = typer.Typer(
     name="vid2sim",
     help="Video-to-simulation data factory for robot navigation.",
     no_args_is_help=True,
     pretty_exceptions_show_locals=False,
-    cls=ConventionGroup,
 )
 
 
@@ -58,10 +54,13 @@ def demo(
                                  help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     workdir: str = typer.Option("vid2sim-work", "--workdir", help="Work folder for stage outputs."),
 ) -> None:
-    """Run the main job end to end on embedded defaults (no downloaded data)."""
+    """Run the main job end to end on embedded defaults (no downloaded data), then one episode of
+    the scripted expert in the new scene, and print how to open both in the browser viewer."""
+    from vid2sim.cli.demo import finish_demo
     from vid2sim.factory.runtime.demo import run_demo
 
-    run_demo(registry=registry, workdir=workdir)
+    summary = run_demo(registry=registry, workdir=workdir)
+    finish_demo(summary["scene_id"], registry, workdir, typer.echo)
 
 
 _register_subapps()
