@@ -1,17 +1,21 @@
 """`vid2sim` command line: one typer sub-app per subsystem.
 
 Every command that reports data takes `--json`. Only commands that work are registered.
+User errors follow one convention (`vid2sim.cli.errors`): exit 2, one line naming the input.
 """
 
 from __future__ import annotations
 
 import typer
 
+from vid2sim.cli.errors import ConventionGroup
+
 app = typer.Typer(
     name="vid2sim",
     help="Video-to-simulation data factory for robot navigation.",
     no_args_is_help=True,
     pretty_exceptions_show_locals=False,
+    cls=ConventionGroup,
 )
 
 

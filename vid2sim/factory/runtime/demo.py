@@ -21,9 +21,9 @@ from rich.table import Table
 
 
 def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed: int = 0) -> dict:
-    from vid2sim.factory.runtime.pipeline import ingest, preset
+    from vid2sim.factory.runtime.pipeline import STEP_NAMES, bundle_path, ingest, preset
     from vid2sim.factory.runtime.progress import IngestProgress
-    from vid2sim.factory.runtime.pipeline import STAGES
+    from vid2sim.factory.runtime.runner import local_outputs
     from vid2sim.factory.synthetic.config import preset as street_preset
     from vid2sim.factory.synthetic.make_street import main as make_street
     from vid2sim.registry import Registry
@@ -43,7 +43,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     report = ingest([str(video)], registry, workdir=work / "clips", conf=preset("fast"),
                     licence="CC0-synthetic", capture_height=street.capture_height,
                     on_plan=lambda ids: holder.setdefault(
-                        "p", IngestProgress(ids, [n for n, _ in STAGES], console=console).__enter__()),
+                        "p", IngestProgress(ids, list(STEP_NAMES), console=console).__enter__()),
                     on_update=lambda s: holder["p"].update(s) if "p" in holder else None)
     if "p" in holder:
         holder["p"].__exit__(None, None, None)
@@ -62,7 +62,7 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
         table.add_row(rec.scene_id, str(rec.version), str(rec.num_frames), f"{rec.num_splats:,}",
                       f"{rec.walkable_area_m2:.1f}", f"{rec.metrics.get('recon.psnr', float('nan')):.2f}")
     console.print(table)
-    scene_dir = Path(result.context["bundle_dir"])
+    scene_dir = bundle_path(result.work)
     metrics = json.loads((scene_dir / "scene.json").read_text())["metrics"]
     import trimesh
 
@@ -70,12 +70,12 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
     from vid2sim.factory.evaluation.synthetic_gt import scene_errors
     from vid2sim.formats.walkable import load_walkable
 
-    gt = scene_errors(PosedClip.load(Path(result.context["posed_dir"])), synth_dir,
+    gt = scene_errors(PosedClip.load(local_outputs(result.work, "metric").dir), synth_dir,
                       trimesh.load(scene_dir / "collision.ply", force="mesh"),
                       load_walkable(scene_dir / "walkable.npz"))
     preview = work / "preview.png"
     shutil.copyfile(scene_dir / "preview.png", preview)
-    summary = {"scene_id": result.context["scene_id"], "seconds": round(time.perf_counter() - t0, 1),
+    summary = {"scene_id": result.work.job.scene_id, "seconds": round(time.perf_counter() - t0, 1),
                "stage_seconds": {k: round(v, 1) for k, v in result.seconds.items()},
                "metrics": {k: v for k, v in metrics.items() if isinstance(v, (int, float))},
                "ground_truth": gt, "preview": str(preview)}
