@@ -141,3 +141,20 @@ def test_demo_prints_viewer_commands_that_parse(tmp_path) -> None:
     cmds = viewer_commands(str(tmp_path / "my reg"), "video-abc-0-10s", tmp_path / "ep.trace.json")
     assert shlex.split(cmds[0])[1:] == ["view", "video-abc-0-10s", "--registry", str(tmp_path / "my reg")]
     assert shlex.split(cmds[1])[1:4] == ["view", "--episode", str(tmp_path / "ep.trace.json")]
+
+
+def test_cli_bad_input_exits_2_naming_it(tmp_path, bundle) -> None:
+    from typer.testing import CliRunner
+
+    from vid2sim.cli.app import app
+
+    reg = Registry(tmp_path / "reg")
+    reg.add(bundle)
+    r = CliRunner().invoke(app, ["view", "nope", "--registry", str(reg.root)])
+    assert r.exit_code == 2 and "unknown scene 'nope'" in r.output
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen()
+        port = s.getsockname()[1]
+        r = CliRunner().invoke(app, ["view", str(bundle), "--port", str(port)])
+    assert r.exit_code == 2 and f"port {port} on 127.0.0.1 is in use" in r.output

@@ -24,12 +24,9 @@ def view_command(
 ) -> None:
     """Splats, collision mesh, walkable map, camera path, metric grid and scene card in the browser."""
     from vid2sim.viewer.app import open_viewer, serve
-    from vid2sim.viewer.errors import ViewerError
 
-    try:
-        viewer = open_viewer(scene, registry=registry, episode=episode, episode_index=index, port=port, host=host,
-                             budget=max_splats)
-    except ViewerError as e:
-        typer.echo(f"error: {type(e).__name__}: {e}", err=True)
-        raise typer.Exit(2)
+    # bad input (unknown scene, no layer at all, port in use, unreadable episode) raises a ViewerError:
+    # exit 2 with one line naming it (vid2sim.cli.errors)
+    viewer = open_viewer(scene, registry=registry, episode=episode, episode_index=index, port=port, host=host,
+                         budget=max_splats)
     serve(viewer, typer.echo)
