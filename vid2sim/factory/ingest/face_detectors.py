@@ -32,7 +32,7 @@ from vid2sim.factory.runtime.stage_cache import StageError
 class FaceConfig:
     detector: str = "centerface"  # centerface | dlib_hog | cascade | yunet | none
     model_path: Optional[str] = None  # local model file (centerface / yunet .onnx, cascade XML)
-    score_threshold: float = 0.0  # 0: the detector's default (centerface 0.2, yunet 0.6, dlib 0.0)
+    score_threshold: float = 0.0  # 0: the detector's default (centerface 0.15, yunet 0.6, dlib 0.0)
     upsample: int = 1  # dlib: image pyramid up-sampling (1 finds faces >= ~40 px)
     upscale: float = 2.0  # centerface: a second pass on a copy enlarged by this (faces < 24 px); <= 1: off
     pad: float = 0.3  # grow each box by this fraction on every side before blurring
@@ -84,7 +84,7 @@ class CenterFaceFaces:
         path = Path(conf.model_path) if conf.model_path else packaged_centerface()
         if not path.is_file():
             raise _missing(f"centerface model_path {path}: no such file")
-        self.conf, self.threshold = conf, conf.score_threshold or 0.2
+        self.conf, self.threshold = conf, conf.score_threshold or 0.15
         self.sess = self._session(path, conf.threads)
 
     @staticmethod

@@ -2,12 +2,13 @@
 
 No learned plate detector ships inside a pip package (the packaged ALPR libraries download
 their weights), and OpenCV 5's main wheel has no cascade classifier, so plates are found by
-their text: on an adaptive threshold of the grey image (dark-on-light and light-on-dark),
-connected components shaped like characters (height in [min_char_px, max_char_px], width/height
-in [0.12, 1.3], fill in [0.15, 0.95]) are chained left to right when their tops and bottoms line
-up and the gap is under `max_gap` character heights; a chain of >= `min_chars` at least 1.8
-character heights long is a plate (its box padded by about half a character height). Any line
-of text (a shop sign, a house number) is blurred too; the false-positive area is measured in benchmarks/privacy.py.
+their text. On an adaptive threshold of the grey image (enlarged `scale` times; dark-on-light
+and light-on-dark), connected components shaped like characters (height in [min_char_px,
+max_char_px], width / height in [0.12, max_aspect], fill in [0.15, 0.95]) are chained left to
+right when their tops and bottoms line up and the gap is under `max_gap` character heights; a
+chain of >= `min_chars` at least 1.8 character heights long is a plate (its box padded by about
+half a character height). Any line of text (a shop sign, a house number) is blurred too; the
+false-positive area is measured in benchmarks/privacy.py.
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ class PlateConfig:
     max_char_px: int = 80
     min_chars: int = 4
     max_gap: float = 1.2  # largest gap between neighbouring characters, in character heights
+    max_aspect: float = 2.5  # widest component (width / height); > 1 admits glyphs that touch
+    align: float = 0.2  # tops and bottoms of neighbours agree within this fraction of their height
+    height_ratio: float = 1.33  # neighbours' heights differ by at most this factor
     block_px: int = 15  # adaptive-threshold window
     contrast: int = 12  # a character is this much darker (or lighter) than its neighbourhood
     scale: float = 2.0  # detect on a copy enlarged by this factor (characters of 6 px become 12)
@@ -35,7 +39,7 @@ def _characters(binary: np.ndarray, conf: PlateConfig) -> np.ndarray:
     """Character-like components of a binary image: [N, 4] x0, y0, x1, y1."""
     _, _, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8)
     x, y, w, h, area = (stats[1:, i].astype(np.float64) for i in range(5))
-    ok = (h >= conf.min_char_px) & (h <= conf.max_char_px) & (w >= 0.12 * h) & (w <= 1.3 * h)
+    ok = (h >= conf.min_char_px) & (h <= conf.max_char_px) & (w >= 0.12 * h) & (w <= conf.max_aspect * h)
     ok &= (area >= 0.15 * w * h) & (area <= 0.95 * w * h)
     return np.stack([x, y, x + w, y + h], 1)[ok]
 
@@ -58,9 +62,9 @@ def _chains(chars: np.ndarray, conf: PlateConfig) -> list[np.ndarray]:
             gap = c[j, 0] - c[i, 2]
             if gap > conf.max_gap * h[i]:
                 break
-            tol = 0.2 * max(h[i], h[j])
+            tol = conf.align * max(h[i], h[j])
             if (gap > -0.2 * h[i] and abs(c[i, 1] - c[j, 1]) < tol and abs(c[i, 3] - c[j, 3]) < tol
-                    and 0.75 < h[j] / h[i] < 1.33):
+                    and 1 / conf.height_ratio < h[j] / h[i] < conf.height_ratio):
                 parent[root(j)] = root(i)
     roots = np.array([root(i) for i in range(len(c))], int)
     return [order[roots == r] for r in np.unique(roots) if (roots == r).sum() >= conf.min_chars]

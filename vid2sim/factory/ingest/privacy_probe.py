@@ -190,7 +190,7 @@ def composite(frame: np.ndarray, poses: list[FacePose], plate_widths: list[int],
     H, W = img.shape[:2]
     taken: list = []
     out = Composite(img, np.zeros((0, 4)), [], np.zeros((0, 4)), np.zeros((0, 4)))
-    for pose in poses:
+    for pose in sorted(poses, key=lambda p: -p.size):  # the largest first, while there is room
         spot = _free_spot(taken, int(pose.size * 2.6), int(pose.size * 2.6), W, H, rng)
         if spot is None:
             continue
