@@ -10,6 +10,8 @@ from typing import Any, Optional
 from vid2sim.viewer.splats import SplatLayer
 
 CORRIDOR_PREFIX = "corridor."
+HEADLINE = ("recon.psnr", "recon.ssim", "recon.n_gaussians", "sfm.registered_fraction", "sfm.mean_reproj_error_px",
+            "walkable.walkable_area_m2", "walkable.collision_faces", "psnr", "walkable_area_m2", "path_length_m")
 
 
 def licence_of(scene: dict) -> str:
@@ -53,6 +55,13 @@ def scene_card(scene: Optional[dict], splats: Optional[SplatLayer], missing: dic
     corridor, other = metrics_groups(scene.get("metrics", {}))
     if corridor:
         parts.append("**Walked corridor**\n\n" + _table(corridor))
-    if other:
-        parts.append("**Metrics**\n\n" + _table(other))
+    headline = [(k, v) for k, v in other if k in HEADLINE]
+    if headline:
+        parts.append("**Headline metrics**\n\n" + _table(headline))
     return "\n\n".join(parts)
+
+
+def metrics_table(metrics: dict) -> str:
+    """Every scalar metric, corridor figures included, as one Markdown table."""
+    corridor, other = metrics_groups(metrics)
+    return _table([(CORRIDOR_PREFIX + k, v) for k, v in corridor] + other)

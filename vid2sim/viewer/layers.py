@@ -46,12 +46,18 @@ class SceneLayers:
     cameras: Optional[CameraPath]
     missing: dict[str, str] = field(default_factory=dict)  # file name -> reason
 
-    def bounds(self) -> np.ndarray:
-        """[2, 3] box around what the scene shows (splats, mesh, walkable, cameras)."""
+    def bounds(self, focus: bool = False) -> np.ndarray:
+        """[2, 3] box around what the scene shows (splats, mesh, walkable, cameras); `focus`: around
+        the walkable map and the camera path only (where the robot goes), when the bundle has them."""
         pts = [np.zeros((1, 3))]
-        if self.splats is not None:
+        if focus and (self.walkable is not None or self.cameras is not None):
+            return self._box(pts, with_splats=False, with_mesh=False)
+        return self._box(pts, with_splats=True, with_mesh=True)
+
+    def _box(self, pts: list, with_splats: bool, with_mesh: bool) -> np.ndarray:
+        if with_splats and self.splats is not None:
             pts.append(np.quantile(self.splats.centers, [0.02, 0.98], axis=0))
-        if self.mesh is not None:
+        if with_mesh and self.mesh is not None:
             pts.append(np.asarray(self.mesh.bounds))
         if self.walkable is not None:
             lo, hi = self.walkable.origin, self.walkable.extent_max()

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import viser
 
-from vid2sim.viewer.card import scene_card
+from vid2sim.viewer.card import metrics_table, scene_card
 from vid2sim.viewer.layers import CameraPath, SceneLayers
 
 MESH_RGB = (235, 120, 40)
@@ -111,8 +111,8 @@ def _toggle(box: viser.GuiCheckboxHandle, handles: list) -> None:
 
 
 def look_from_above(server: viser.ViserServer, layers: SceneLayers) -> None:
-    """Initial camera: above and behind the scene centre, looking at it."""
-    lo, hi = layers.bounds()
+    """Initial camera: above and behind the walkable map and camera path, looking at their centre."""
+    lo, hi = layers.bounds(focus=True)
     centre = (lo + hi) / 2
     centre[2] = 0.0
     span = max(float(np.linalg.norm(hi[:2] - lo[:2])), 4.0)
@@ -139,5 +139,10 @@ def show_scene(server: viser.ViserServer, layers: SceneLayers, hidden: tuple[str
     view.gui.append(card)
     with card:
         view.gui.append(server.gui.add_markdown(scene_card(layers.scene, layers.splats, layers.missing)))
+    if layers.scene is not None and layers.scene.get("metrics"):
+        metrics = server.gui.add_folder("All metrics", expand_by_default=False)
+        view.gui.append(metrics)
+        with metrics:
+            view.gui.append(server.gui.add_markdown(metrics_table(layers.scene["metrics"])))
     look_from_above(server, layers)
     return view
