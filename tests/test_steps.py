@@ -4,8 +4,9 @@
   line, the README list) name the same stages in the same order; the table's inputs are the
   `Inputs` records' fields and its "writes" cell names every file of the `Outputs` record.
 - Every `Inputs` field is an earlier step's `Outputs` record (or the clip spec).
-- Through the runner, decode -> masks on a small panning clip: an unchanged re-run rewrites no
-  marker; a changed config or bumped version reruns exactly that step and the ones after it.
+- Through the runner, decode -> masks on a small panning clip: the marker is the newest file of
+  each folder; an unchanged re-run rewrites no marker; a changed config or bumped version reruns
+  exactly that step and the ones after it.
 """
 
 from __future__ import annotations
@@ -106,6 +107,9 @@ def _chain(work: ClipWork) -> dict[str, tuple[str, int]]:
     for name in ("decode", "masks"):
         work = run_step(BY_NAME[name], work)
     clip_dir = Path(work.workdir) / work.clip_id
+    for out in work.outputs.values():  # the marker is the last file of each folder
+        files = [p.stat().st_mtime_ns for p in (clip_dir / out.dir).rglob("*") if p.is_file() and p.name != MARKER]
+        assert files and max(files) <= (clip_dir / out.dir / MARKER).stat().st_mtime_ns
     return {n: (load_record(clip_dir / o.dir).key, (clip_dir / o.dir / MARKER).stat().st_mtime_ns)
             for n, o in work.outputs.items()}
 

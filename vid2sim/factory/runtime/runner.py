@@ -6,8 +6,8 @@
    the clip folder (`staging.py`), and a URI source is fetched by this node;
 2. threads are limited to the task's CPUs;
 3. the step's `Inputs` record is built from the `Outputs` of the steps done so far;
-4. `main` runs (it skips work whose marker holds the same key); its folder must then hold a
-   marker;
+4. `main` runs (it skips work whose marker holds the same key); its folder must then hold
+   the step's marker;
 5. on a work store the step's folder is uploaded, marker last.
 It returns the clip's work record with the step's `Outputs` added, the folder relative to the
 clip folder, so the record is valid on every node.
@@ -77,7 +77,8 @@ def _inputs(step: Step, work: ClipWork, clip_dir: Path) -> object:
 def _run(step: Step, work: ClipWork, clip_dir: Path) -> StepOutputs:
     limit_threads(work.cpus)
     out = step.main(step.configure(work.conf, work.job), _inputs(step, work, clip_dir), clip_dir / step.name)
-    if load_record(out.dir) is None:
+    rec = load_record(out.dir)
+    if rec is None or rec.stage != step.name:
         raise StageError(step.name, "no_marker", f"{out.dir}: the step returned without marking its folder done")
     return out.relative_to(clip_dir)
 
