@@ -158,3 +158,12 @@ def test_cli_bad_input_exits_2_naming_it(tmp_path, bundle) -> None:
         port = s.getsockname()[1]
         r = CliRunner().invoke(app, ["view", str(bundle), "--port", str(port)])
     assert r.exit_code == 2 and f"port {port} on 127.0.0.1 is in use" in r.output
+
+
+def test_walkable_image_rows_follow_the_grid() -> None:
+    from vid2sim.viewer.scene_view import walkable_rgba
+
+    grid = np.zeros((4, 3), np.uint8)
+    grid[0, 2] = 1  # lowest y, largest x
+    img = walkable_rgba(grid)
+    assert img.shape == (4, 3, 4) and img[0, 2, 3] > 0 and img[:, :, 3].sum() == img[0, 2, 3]

@@ -14,7 +14,7 @@ from vid2sim.viewer.layers import CameraPath, SceneLayers
 
 MESH_RGB = (235, 120, 40)
 MESH_OPACITY = 0.6  # the splats stay visible through the mesh
-WALKABLE_RGBA = (60, 200, 90, 150)
+WALKABLE_RGBA = (60, 200, 90, 110)
 PATH_RGB = (40, 110, 240)
 GRID_CELL_M = 1.0  # one grid cell is one metre
 GRID_SECTION_M = 5.0
@@ -42,10 +42,11 @@ class SceneView:
 
 
 def walkable_rgba(grid: np.ndarray) -> np.ndarray:
-    """[H, W, 4] u8 image of a walkable grid, image row 0 at the largest y (top of the plane)."""
+    """[H, W, 4] u8 image of a walkable grid: image row r is grid row r, since viser lays an image
+    y-down (its row 0 on the plane's -y edge, where the grid's row 0, the lowest y, lies)."""
     img = np.zeros((*grid.shape, 4), np.uint8)
     img[grid > 0] = WALKABLE_RGBA
-    return img[::-1].copy()
+    return img
 
 
 def _walkable(server: viser.ViserServer, layers: SceneLayers) -> list:
@@ -111,13 +112,20 @@ def _toggle(box: viser.GuiCheckboxHandle, handles: list) -> None:
 
 
 def look_from_above(server: viser.ViserServer, layers: SceneLayers) -> None:
-    """Initial camera: above and behind the walkable map and camera path, looking at their centre."""
+    """Initial camera: above and behind the source video's first camera, looking down the walked
+    path (without cameras: above the scene centre)."""
     lo, hi = layers.bounds(focus=True)
     centre = (lo + hi) / 2
     centre[2] = 0.0
     span = max(float(np.linalg.norm(hi[:2] - lo[:2])), 4.0)
+    direction = np.array([0.45, 0.45])
+    cams = layers.cameras
+    if cams is not None and len(cams.centers) >= 2:
+        walk = cams.centers[-1, :2] - cams.centers[0, :2]
+        if np.linalg.norm(walk) > 0.5:
+            direction = -walk / np.linalg.norm(walk) * 0.64
     server.initial_camera.look_at = tuple(centre)
-    server.initial_camera.position = tuple(centre + np.array([-0.45, -0.45, 0.55]) * span)
+    server.initial_camera.position = tuple(centre + np.append(direction, 0.45) * span)
 
 
 def show_scene(server: viser.ViserServer, layers: SceneLayers, hidden: tuple[str, ...] = ()) -> SceneView:
