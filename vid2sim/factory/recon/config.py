@@ -109,6 +109,16 @@ class ReconConfig:
     seed: int = 0  # torch / numpy seed (initial point subset, view order)
     checkpoint_every: int = 500  # iterations between checkpoints (a re-run resumes from the last; 0 = none)
     eval_max_frames: int = 0  # 0 = every held-out frame
+    # coarse-to-fine: the first `coarse_iterations` steps render at `coarse_scale` x the training
+    # resolution (images, masks, intrinsics and priors downscaled alike); 0 = off
+    coarse_iterations: int = 0
+    coarse_scale: float = 0.5  # fraction of the training width (and height) while coarse
+    # stop at convergence: every `holdout_every` steps the held-out frames' masked L1 is measured;
+    # from `densify.stop_iter` on, training stops once `holdout_patience` checks in a row
+    # improve on the best by less than `holdout_min_delta` (relative). 0 = run every iteration
+    holdout_every: int = 0
+    holdout_patience: int = 2  # checks without improvement before stopping
+    holdout_min_delta: float = 0.002  # relative L1 improvement that counts
     lr: LRConfig = field(default_factory=LRConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     densify: DensifyConfig = field(default_factory=DensifyConfig)

@@ -107,3 +107,15 @@ def scene_extent(views: list[View]) -> float:
     centres = np.stack([v.cam_to_world[:3, 3] for v in views])
     radius = float(np.linalg.norm(centres - centres.mean(0), axis=1).max())
     return 1.1 * max(radius, 1e-3)
+
+
+def downscale_view(view: View, scale: float) -> View:
+    """The view at `scale` x its size (image INTER_AREA, mask nearest, K rescaled)."""
+    h0, w0 = view.height, view.width
+    w, h = max(1, int(round(w0 * scale))), max(1, int(round(h0 * scale)))
+    if (w, h) == (w0, h0):
+        return view
+    img = cv2.resize(view.image, (w, h), interpolation=cv2.INTER_AREA)  # [h, w, 3]
+    mask = cv2.resize(view.mask.astype(np.uint8), (w, h), interpolation=cv2.INTER_NEAREST) > 0  # [h, w]
+    return View(view.index, view.name, view.split, img, mask, scale_K(view.K, w / w0, h / h0), view.cam_to_world)
+

@@ -17,13 +17,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import numpy as np
 import torch
 
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import losses as L
 from vid2sim.factory.recon.config import ReconConfig
-from vid2sim.factory.recon.data import OUTPUTS, STAGE, STAGE_VERSION, View, load_views, scene_extent
+from vid2sim.factory.recon.data import OUTPUTS, STAGE, STAGE_VERSION, View, downscale_view, load_views, scene_extent
 from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune_only, reset_opacity
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
@@ -82,8 +83,14 @@ def load_or_estimate_priors(conf: ReconConfig, views: list[View], points: np.nda
 
 
 def prior_tensors(prior: DepthPrior, view: View, window: int) -> PriorTensors:
-    depth = torch.from_numpy(prior.depth).float()
-    ok = torch.from_numpy(prior.confidence) & (depth > 0)
+    """The prior at the view's resolution (nearest-neighbour when the view is smaller)."""
+    depth_np, conf_np = prior.depth, prior.confidence
+    if depth_np.shape != (view.height, view.width):
+        size = (view.width, view.height)
+        depth_np = cv2.resize(depth_np, size, interpolation=cv2.INTER_NEAREST)  # [h, w]
+        conf_np = cv2.resize(conf_np.astype(np.uint8), size, interpolation=cv2.INTER_NEAREST) > 0
+    depth = torch.from_numpy(np.ascontiguousarray(depth_np)).float()
+    ok = torch.from_numpy(np.ascontiguousarray(conf_np)) & (depth > 0)
     normal, normal_ok = L.normals_from_depth_pca(depth, torch.from_numpy(view.K), window, valid=ok)
     return PriorTensors(depth, ok, normal, normal_ok)
 
@@ -145,10 +152,10 @@ def step_loss(conf: ReconConfig, out, gt: torch.Tensor, mask: torch.Tensor,
 # ----------------------------------------------------------------------------- checkpoints
 
 def save_checkpoint(path: Path, key: str, it: int, params: SplatParams, stats: DensifyStats,
-                    log: list) -> None:
+                    log: list, holdout: Optional[dict] = None) -> None:
     tmp = path.with_name(path.name + ".tmp")
     torch.save({"key": key, "iter": it, "params": params.state_dict(), "stats": stats.__dict__,
-                "torch_rng": torch.get_rng_state(), "log": log}, tmp)
+                "torch_rng": torch.get_rng_state(), "log": log, "holdout": holdout or {}}, tmp)
     os.replace(tmp, path)
 
 
@@ -164,43 +171,81 @@ def load_checkpoint(path: Path, key: str) -> Optional[dict]:
 
 # ----------------------------------------------------------------------------- training
 
+@dataclass
+class Level:
+    """Cameras, target images and prior tensors of the training views at one resolution."""
+
+    cams: dict[int, Camera]
+    gts: dict[int, tuple[torch.Tensor, torch.Tensor]]  # index -> (image [H, W, 3], mask [H, W])
+    priors: dict[int, PriorTensors]
+
+
+def make_level(conf: ReconConfig, train_views: list[View], priors: dict[int, DepthPrior],
+               scale: float = 1.0) -> Level:
+    views = [downscale_view(v, scale) for v in train_views]
+    return Level(
+        cams={v.index: Camera.from_cam_to_world(v.K, v.cam_to_world, v.width, v.height) for v in views},
+        gts={v.index: (torch.from_numpy(v.image), torch.from_numpy(v.mask)) for v in views},
+        priors={v.index: prior_tensors(priors[v.index], v, conf.loss.normal_pca_window)
+                for v in views if v.index in priors and priors[v.index].confidence.any()})
+
+
+@torch.no_grad()
+def holdout_l1(conf: ReconConfig, params: SplatParams, views: list[View], deg: int) -> float:
+    """Mean masked L1 of the current splats on the held-out views (full training resolution)."""
+    model = params.model()
+    total = 0.0
+    for v in views:
+        cam = Camera.from_cam_to_world(v.K, v.cam_to_world, v.width, v.height)
+        settings = RasterSettings(width=v.width, height=v.height, active_sh_degree=deg)
+        out = render(model, cam, settings, conf.background, conf.backend)
+        mask = torch.from_numpy(v.mask)[..., None].float()  # [H, W, 1]
+        err = ((out.rgb - torch.from_numpy(v.image)).abs() * mask).sum()
+        total += float(err / (3 * mask.sum()).clamp_min(1.0))
+    return total / max(len(views), 1)
+
+
 def train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[int, DepthPrior],
           out_dir: Path, key: str, log_every: int = 100) -> tuple[GaussianModel, dict]:
     """Optimise the splats; returns (model, training summary)."""
     torch.manual_seed(conf.seed)
     rng = np.random.default_rng(conf.seed)
     train_views = [v for v in views if v.split == "train"]
+    test_views = [v for v in views if v.split == "test"]
     if not train_views:
         raise StageError(STAGE, "no_training_frames", "every frame of the clip is held out")
     extent = scene_extent(views)
     lrs = learning_rates(conf, extent)
     ck_path = Path(out_dir) / CHECKPOINT
     ck = load_checkpoint(ck_path, key)
+    holdout = {"best": float("inf"), "bad": 0}
     if ck is None:
         params = SplatParams.from_model(init_model(clip, conf, rng), lrs)
         stats, start, log = DensifyStats.zeros(params.n), 0, []
     else:
         params = SplatParams.from_state_dict(ck["params"], lrs)
         stats, start, log = DensifyStats(**ck["stats"]), int(ck["iter"]), list(ck["log"])
+        holdout.update(ck.get("holdout", {}))
         torch.set_rng_state(ck["torch_rng"])
-    cams = {v.index: Camera.from_cam_to_world(v.K, v.cam_to_world, v.width, v.height) for v in train_views}
-    gts = {v.index: (torch.from_numpy(v.image), torch.from_numpy(v.mask)) for v in train_views}
-    ptens = {v.index: prior_tensors(priors[v.index], v, conf.loss.normal_pca_window)
-             for v in train_views if v.index in priors and priors[v.index].confidence.any()}
+    coarse = conf.coarse_scale < 1.0 and start < conf.coarse_iterations
+    level = make_level(conf, train_views, priors, conf.coarse_scale if coarse else 1.0)
     dc = conf.densify
     order: list[int] = []
     t0 = time.perf_counter()
+    done = start
     for it in range(start, conf.iterations):
+        if coarse and it >= conf.coarse_iterations:
+            coarse, level = False, make_level(conf, train_views, priors)
         if not order:
             order = list(rng.permutation([v.index for v in train_views]))
         vi = order.pop()
         params.set_lr("means", means_lr(conf, extent, it))
-        cam = cams[vi]
+        cam = level.cams[vi]
         deg = min(conf.sh_degree, it // max(conf.sh_increase_every, 1))
         settings = RasterSettings(width=cam.width, height=cam.height, active_sh_degree=deg)
         out = render(params.model(), cam, settings, conf.background, conf.backend, absgrad=True)
-        gt, mask = gts[vi]
-        loss, parts = step_loss(conf, out, gt, mask, ptens.get(vi), params.p["log_scales"], it)
+        gt, mask = level.gts[vi]
+        loss, parts = step_loss(conf, out, gt, mask, level.priors.get(vi), params.p["log_scales"], it)
         loss.backward()
         if it < dc.stop_iter and out.raw.grad2d is not None:
             absgrad = out.raw.absgrad if out.raw.absgrad is not None else out.raw.grad2d.abs()
@@ -219,10 +264,20 @@ def train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[in
             stats = DensifyStats.zeros(params.n)
         if done % log_every == 0 or done == conf.iterations:
             log.append({"iter": done, "n": params.n, "sec": round(time.perf_counter() - t0, 2), **parts})
+        if conf.holdout_every and test_views and done % conf.holdout_every == 0 and done < conf.iterations:
+            l1 = holdout_l1(conf, params, test_views, deg)
+            log.append({"iter": done, "holdout_l1": l1})
+            if l1 < holdout["best"] * (1.0 - conf.holdout_min_delta):
+                holdout["best"], holdout["bad"] = l1, 0
+            elif done >= dc.stop_iter:
+                holdout["bad"] += 1
+            if done >= dc.stop_iter and holdout["bad"] >= conf.holdout_patience:
+                log.append({"iter": done, "stopped": "held-out L1 converged"})
+                break
         if conf.checkpoint_every and done % conf.checkpoint_every == 0 and done < conf.iterations:
-            save_checkpoint(ck_path, key, done, params, stats, log)
+            save_checkpoint(ck_path, key, done, params, stats, log, holdout)
     model = params.detached_model()
-    return model, {"iterations": conf.iterations, "resumed_from": start, "n_gaussians": model.num,
+    return model, {"iterations": done, "resumed_from": start, "n_gaussians": model.num,
                    "scene_extent": extent, "log": log}
 
 
