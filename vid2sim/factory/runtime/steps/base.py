@@ -44,7 +44,7 @@ class Step:
     """One factory step; `configure(pipeline_conf, job)` gives the config `main` takes."""
 
     name: str
-    version: int
+    version: int  # the stage code's STAGE_VERSION, part of its cache key
     inputs: type
     outputs: type
     configure: Callable[[Any, Any], Any]

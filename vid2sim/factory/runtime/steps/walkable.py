@@ -19,7 +19,7 @@ import trimesh
 from vid2sim.factory.evaluation.corridor import CorridorConfig, corridor_check, gate_reasons
 from vid2sim.factory.geometry import walkable as stage
 from vid2sim.factory.geometry.walkable import WalkableConfig
-from vid2sim.factory.runtime.stage_cache import StageError, input_key
+from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.factory.runtime.steps import meshing, metric
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.formats.walkable import load_walkable
@@ -72,7 +72,7 @@ def main(conf: Config, inputs: Inputs, out_dir: Path) -> Outputs:
     ground = stage.load_points(mesh.ground_points, "bad_ground_points")
     carved = stage.load_points(mesh.carved_points, "bad_carved_points") if mesh.carved_points.is_file() else None
     # the corridor config decides corridor.json, a file of this stage: it is part of the key
-    key = config_hash(input_key(mesh.dir), input_key(inputs.metric.dir), conf.corridor)
+    key = config_hash(mesh.key, inputs.metric.key, conf.corridor)
     out = Outputs(stage.main(conf.walkable, ground, mesh.collision, path, out_dir, input_key=key,
                              carved_points=carved,
                              before_marker=lambda d: corridor_report(conf.corridor, d, path)))
