@@ -2,8 +2,14 @@
 
     .venv/bin/python benchmarks/pipeline.py gopro       # 10 s GoPro clip -> registered scene (fast preset)
     .venv/bin/python benchmarks/pipeline.py parallel    # 4 synthetic clips: 2 workers vs one after another
+    .venv/bin/python benchmarks/pipeline.py speed       # recon presets side by side: demo street and GoPro clip
 
-`gopro` reads ../shared/data (skips with a message when absent). `parallel` compares
+`gopro` reads ../shared/data (skips with a message when absent). `speed` ingests the demo street
+(generated, with ground truth) and the GoPro clip (when present) once with each reconstruction
+preset (`--before fast --after quick` by default, everything else equal) and prints per-stage
+wall seconds, the recon stage's process CPU seconds and the quality figures side by side: held-out
+PSNR / SSIM, the walked corridor (path on walkable, pieces, corridor area) and, on the demo
+street, walkable IoU and collision-mesh accuracy / completeness against ground truth. `parallel` compares
 ingesting N clips in one call (clips share the CPUs: each clip's tasks get CPUs/N, so two
 clips run at once on 2 cores) against N calls of one clip each (each clip gets every CPU).
 Each run uses a fresh work folder and registry, so nothing is cached between runs.
@@ -107,16 +113,115 @@ def bench_parallel(run: Run, args: argparse.Namespace) -> None:
         shutil.rmtree(root, ignore_errors=True)
 
 
+def ingest_with(video: str, work: Path, recon: str, **kw):
+    """One clip through the pipeline with recon preset `recon`: (wall s, ClipResult, registry)."""
+    from dataclasses import replace
+
+    from vid2sim.factory.recon.config import preset as recon_preset
+
+    conf = replace(preset("fast"), recon=recon_preset(recon))
+    t0 = time.perf_counter()
+    report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=conf, num_cpus=2, **kw)
+    return time.perf_counter() - t0, report.results[0], str(work / "registry")
+
+
+def clip_figures(result, registry: str, synth_dir: Path | None) -> dict:
+    """Stage seconds, recon CPU seconds and the quality figures of one finished clip."""
+    from vid2sim.factory.runtime.pipeline import bundle_path
+    from vid2sim.factory.runtime.runner import local_outputs
+
+    fig = {f"{k} s": v for k, v in result.seconds.items()}
+    if not result.ok:
+        return {**fig, "failed": f"{result.failed_stage}: {result.reason}"}
+    rm = json.loads((local_outputs(result.work, "recon").dir / "metrics.json").read_text())
+    fig.update({"recon CPU s": rm.get("cpu_seconds"), "recon prior CPU s": rm.get("prior_cpu_seconds"),
+                "recon train CPU s": rm.get("train_cpu_seconds"), "recon iterations": rm.get("iterations"),
+                "splats": rm.get("n_gaussians"), "held-out PSNR dB": rm.get("psnr"),
+                "held-out SSIM": rm.get("ssim")})
+    scene_dir = bundle_path(result.work)
+    metrics = json.loads((scene_dir / "scene.json").read_text())["metrics"]
+    for k in ("corridor.walkable_fraction", "corridor.path_components", "corridor.corridor_area_m2"):
+        fig[k] = metrics.get(k)
+    if synth_dir is not None:
+        import trimesh
+
+        from vid2sim.factory.evaluation.synthetic_gt import scene_errors
+        from vid2sim.factory.sfm.posed import PosedClip
+        from vid2sim.formats.walkable import load_walkable
+
+        gt = scene_errors(PosedClip.load(local_outputs(result.work, "metric").dir), synth_dir,
+                          trimesh.load(scene_dir / "collision.ply", force="mesh"),
+                          load_walkable(scene_dir / "walkable.npz"))
+        fig.update({"walkable IoU (GT)": gt["walkable_iou"],
+                    "collision accuracy median m (GT)": gt["collision_accuracy_median_m"],
+                    "near-path accuracy median m (GT)": gt.get("near_path_accuracy_median_m"),
+                    "near-path completeness (GT)": gt.get("near_path_completeness")})
+    return fig
+
+
+def _fmt(v) -> str:
+    if v is None:
+        return "-"
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
+
+
+def bench_speed(run: Run, args: argparse.Namespace) -> None:
+    import platform
+
+    print(f"host: {platform.node()} {os.cpu_count()} CPUs, ingest with num_cpus=2; loadavg at start "
+          f"{os.getloadavg()} (wall seconds on a shared machine include other processes' load; the recon "
+          f"CPU seconds are process time)")
+    clips = []
+    root = Path(tempfile.mkdtemp(prefix="bench-speed-"))
+    from vid2sim.factory.synthetic.config import preset as street_preset
+    from vid2sim.factory.synthetic.make_street import main as make_street
+
+    street = street_preset("demo", seed=0)
+    synth = make_street(street, root / "synthetic")
+    clips.append(("demo street", str(synth / "video.mp4"), synth,
+                  dict(licence="CC0-synthetic", capture_height=street.capture_height)))
+    video = DATA / "gopro_max_sidewalk" / "max-heromode.mp4"
+    if video.is_file():
+        clips.append(("gopro", str(video), None, dict(licence="Apache-2.0 OR MIT", capture_height=1.5)))
+    else:
+        run.skip("gopro", f"{video} is absent (benchmarks read ../shared/data beside the project)")
+    for name, path, synth_dir, kw in clips:
+        cols = {}
+        for label, recon in (("before", args.before), ("after", args.after)):
+            work = root / f"{name.replace(' ', '-')}-{label}"
+            wall, result, registry = ingest_with(path, work, recon, **kw)
+            cols[label] = {"recon preset": recon, "video to registered scene s": wall,
+                           **clip_figures(result, registry, synth_dir)}
+            run.record_all(f"{name}: {label} ({recon})", {k: v for k, v in cols[label].items()
+                                                          if isinstance(v, (int, float))})
+        keys = list(dict.fromkeys([*cols["before"], *cols["after"]]))
+        print(f"\n## {name}: recon preset {args.before} (before) vs {args.after} (after)")
+        print(f"{'figure':<36}{'before':>14}{'after':>14}")
+        for k in keys:
+            print(f"{k:<36}{_fmt(cols['before'].get(k)):>14}{_fmt(cols['after'].get(k)):>14}")
+        for k in ("recon s", "recon CPU s", "video to registered scene s"):
+            b, a = cols["before"].get(k), cols["after"].get(k)
+            if b and a:
+                print(f"{k}: speed-up x{b / a:.2f}")
+    print(f"\nloadavg at end {os.getloadavg()}")
+    if not args.keep:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("what", choices=["gopro", "parallel"])
+    ap.add_argument("what", choices=["gopro", "parallel", "speed"])
+    ap.add_argument("--before", default="fast", help="speed: the recon preset of the 'before' column")
+    ap.add_argument("--after", default="quick", help="speed: the recon preset of the 'after' column")
     ap.add_argument("--clips", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
     add_run_args(ap)
     args = ap.parse_args()
     with Run("pipeline", args) as run:
-        {"gopro": bench_gopro, "parallel": bench_parallel}[args.what](run, args)
+        {"gopro": bench_gopro, "parallel": bench_parallel, "speed": bench_speed}[args.what](run, args)
 
 
 if __name__ == "__main__":

@@ -304,12 +304,16 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
         fresh_dir(out_dir)
     conf.save(out_dir / "config.json")
     clip = PosedClip.load(posed_clip_dir)
+    cpu = {"start": time.process_time()}  # process CPU seconds (every thread): wall time on a shared machine misleads
     with Timer() as timer:
         views = load_views(clip, conf.max_width)
         with Timer() as t_prior:
+            cpu["prior"] = time.process_time()
             priors = load_or_estimate_priors(conf, views, np.asarray(clip.points_xyz), out_dir)
         with Timer() as t_train:
+            cpu["train"] = time.process_time()
             model, summary = train(conf, clip, views, priors, out_dir, key)
+            cpu["train_end"] = time.process_time()
         write_ply(model, out_dir / OUTPUTS.splats)
         gt_dir = gt_depth_dir or clip.frame_info.get("gt_depth_dir")
         gt = load_gt_depths(Path(gt_dir), views) if gt_dir else {}
@@ -318,6 +322,8 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
                    n_gaussians=summary["n_gaussians"], iterations=summary["iterations"],
                    resumed_from=summary["resumed_from"], prior_seconds=t_prior.seconds,
                    train_seconds=t_train.seconds, seconds=timer.seconds,
+                   prior_cpu_seconds=cpu["train"] - cpu["prior"], train_cpu_seconds=cpu["train_end"] - cpu["train"],
+                   cpu_seconds=time.process_time() - cpu["start"],
                    prior_coverage=_coverage(priors), resolution=[views[0].width, views[0].height])
     _write_json(out_dir / OUTPUTS.metrics, metrics)
     _write_json(out_dir / "train_log.json", {"log": summary["log"]})
