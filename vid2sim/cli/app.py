@@ -61,8 +61,11 @@ def demo(
     """Run the main job end to end on embedded defaults (no downloaded data), then one episode of
     the scripted expert in the new scene, and print how to open both in the browser viewer."""
     from vid2sim.cli.demo import finish_demo
+    from vid2sim.cli.inputs import creatable_folder
     from vid2sim.factory.runtime.demo import run_demo
 
+    creatable_folder(registry, "--registry")
+    creatable_folder(workdir, "--workdir")
     summary = run_demo(registry=registry, workdir=workdir)
     finish_demo(summary["scene_id"], registry, workdir, typer.echo)
 

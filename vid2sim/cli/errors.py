@@ -143,8 +143,7 @@ class ConventionGroup(TyperGroup):
         except Exception as e:
             if not is_user_error(e) or os.environ.get("VID2SIM_TRACEBACK") == "1":
                 raise
-            rep = report_of(e)
-        # reported outside the except block: a live traceback would keep Delta/Arrow objects alive
-        # until interpreter teardown, where their native threads can abort the process
-        gc.collect()
+            rep, parsing = report_of(e), isinstance(e, click.ClickException)
+        if not parsing:  # the command ran: free the frames of its traceback now (Delta/Arrow objects
+            gc.collect()  # left to interpreter teardown can abort the process from their native threads)
         return emit(rep, wants_json(argv))

@@ -20,9 +20,9 @@ def poses(
     gt_format: str = typer.Option("auto", "--gt-format",
                                   help="kitti | synthetic | transforms | gopro-csv | colmap | auto"),
     est_format: str = typer.Option("auto", "--est-format", help="posed | colmap | transforms | kitti | auto"),
-    fps: Optional[float] = typer.Option(None, "--fps",
+    fps: Optional[float] = typer.Option(None, "--fps", min=0.001, max=10_000.0,
                                         help="GoPro: frame rate to key sub-sampled estimate frames by timestamp."),
-    stride: int = typer.Option(1, "--stride", help="GoPro: estimate frame j is video frame j * stride."),
+    stride: int = typer.Option(1, "--stride", min=1, help="GoPro: estimate frame j is video frame j * stride."),
     as_json: bool = typer.Option(False, "--json", help="Print the full report as JSON."),
 ) -> None:
     """ATE / RPE after Sim(3) alignment, or relative rotation error against GoPro telemetry."""
@@ -60,16 +60,17 @@ def poses(
 def policy(
     policy: str = typer.Option(..., "--policy", help="Training run folder (or SAC .zip), 'random' or 'expert'."),
     registry: str = typer.Option(..., "--registry", help="Registry root."),
-    split_seed: int = typer.Option(0, "--split-seed", help="Split whose held-out test scenes are used."),
+    split_seed: int = typer.Option(0, "--split-seed", min=0, help="Split whose held-out test scenes are used."),
     scenes: Optional[str] = typer.Option(None, "--scenes", help="Comma-separated scene ids instead of the test split."),
-    trials: int = typer.Option(25, "--trials", help="Episodes per scene (paper: 25)."),
+    trials: int = typer.Option(25, "--trials", min=1, help="Episodes per scene (paper: 25)."),
     obstacles: str = typer.Option("static", "--obstacles", help="none | static (0-5, paper) | dynamic (SocialNav)"),
     variant: str = typer.Option("rgb", "--variant", help="rgb | depth (oracle) | mesh-rgb (baseline)"),
-    max_steps: Optional[int] = typer.Option(None, "--max-steps", help="Episode limit (default: the env's 3000)."),
-    seed: int = typer.Option(1000, "--seed", help="Trial k of every scene uses seed + k."),
+    max_steps: Optional[int] = typer.Option(None, "--max-steps", min=1,
+                                            help="Episode limit (default: the env's 3000)."),
+    seed: int = typer.Option(1000, "--seed", min=0, help="Trial k of every scene uses seed + k."),
     privileged: bool = typer.Option(False, "--privileged", help="Goal vector + range observations (privileged agent)."),
     out: Optional[Path] = typer.Option(None, "--out", help="Write the JSON report here."),
-    record: int = typer.Option(0, "--record", help="MP4s of the first N trials of every scene."),
+    record: int = typer.Option(0, "--record", min=0, help="MP4s of the first N trials of every scene."),
     record_dir: Path = typer.Option(Path("vid2sim-eval-videos"), "--record-dir", help="Folder for the MP4s."),
     sets: List[str] = typer.Option([], "--set", metavar="FIELD=VALUE",
                                    help="Override an EvalConfig field, or env.FIELD of its env config "
@@ -77,6 +78,10 @@ def policy(
     as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
 ) -> None:
     """Navigation policy on held-out scenes: SR, SPL, Cost, SNS with 95 % bootstrap intervals."""
+    from vid2sim.cli.inputs import creatable_folder, registry_root
+
+    registry_root(registry)
+    creatable_folder(str(out.parent) if out else None, "--out")
     from rich.console import Console
     from rich.table import Table
 

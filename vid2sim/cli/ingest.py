@@ -40,7 +40,7 @@ def ingest_command(
                                      "URI (s3://bucket/work) for clusters without a shared disk."),
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="CPUs for the embedded Ray runtime (>= 1)."),
     licence: str = typer.Option("unknown", "--licence", help="Licence tag for sources given directly."),
-    capture_height: Optional[float] = typer.Option(None, "--capture-height",
+    capture_height: Optional[float] = typer.Option(None, "--capture-height", min=0.05, max=100.0,
                                                    help="Camera height above ground (m) for direct sources."),
     sets: List[str] = typer.Option([], "--set", metavar="FIELD=VALUE",
                                    help="Override one pipeline setting, e.g. recon.iterations=500 (repeatable; "
@@ -50,16 +50,19 @@ def ingest_command(
     """Turn videos into registered, simulation-ready scenes (each clip's stages run as Ray tasks)."""
     from vid2sim.factory.runtime.pipeline import STEP_NAMES, PipelineConfig, ingest, preset as make_preset
     from vid2sim.factory.runtime.progress import IngestProgress
-    from vid2sim.factory.runtime.stage_cache import StageError
 
+    from vid2sim.cli.errors import InputError
+    from vid2sim.cli.inputs import creatable_folder, existing_sources
     from vid2sim.cli.settings import apply_or_exit
 
+    existing_sources(inputs)
+    creatable_folder(registry, "--registry")
+    creatable_folder(workdir, "--workdir")
     console = Console(stderr=True)
     try:
         conf = PipelineConfig.load(config) if config else make_preset(preset)
     except (ValueError, TypeError, OSError) as e:
-        console.print(f"[red]error:[/red] {e}")
-        raise typer.Exit(2)
+        raise InputError("--config" if config else "--preset", str(e)) from None
     conf = apply_or_exit(conf, sets)
     holder: dict = {}
 
@@ -76,9 +79,6 @@ def ingest_command(
         report = ingest(inputs, registry, workdir=workdir, conf=conf, ray_address=ray_address,
                         num_cpus=num_cpus, licence=licence, capture_height=capture_height,
                         on_update=on_update, on_plan=on_plan)
-    except StageError as e:  # a bad manifest: nothing was processed
-        console.print(f"[red]error:[/red] {e}")
-        raise typer.Exit(2)
     except KeyboardInterrupt:
         if "progress" in holder:
             holder.pop("progress").__exit__(None, None, None)

@@ -22,12 +22,16 @@ def run(
     checkpoint: Optional[str] = typer.Option(None, "--depth-checkpoint",
                                              help="Local Depth-Anything-V2 folder (with --prior depth_anything)."),
     baseline: bool = typer.Option(False, "--baseline", help="Plain 3DGS: no prior, no geometry losses."),
-    iterations: Optional[int] = typer.Option(None, "--iterations"),
+    iterations: Optional[int] = typer.Option(None, "--iterations", min=1),
     gt_depth: Optional[Path] = typer.Option(None, "--gt-depth", help="GT depth folder for depth/normal error."),
     as_json: bool = typer.Option(False, "--json", help="Print the metrics as JSON."),
 ) -> None:
     """Train, evaluate on held-out frames (every 8th) and write the result; skips finished work."""
+    from vid2sim.cli.inputs import creatable_folder, existing_sources
     from vid2sim.factory.recon import config as C
+
+    existing_sources([str(posed_dir)], "POSED_DIR")
+    creatable_folder(str(out_dir), "OUT_DIR")
     from vid2sim.factory.recon.trainer import main
 
     conf = C.preset(preset)

@@ -146,11 +146,11 @@ def _parse_min(items: List[str]) -> dict[str, float]:
 
 
 @app.command()
-def split(seed: int = typer.Option(0, "--seed"),
-          test_fraction: float = typer.Option(0.2, "--test-fraction",
+def split(seed: int = typer.Option(0, "--seed", min=0),
+          test_fraction: float = typer.Option(0.2, "--test-fraction", min=0.0, max=1.0,
                                               help="Share of scenes held out (whole source videos)."),
           test_group: List[str] = typer.Option([], "--test-group", help="Fixed held-out source group (repeat)."),
-          train_size: List[int] = typer.Option([], "--train-size", help="Nested train subset size (repeat)."),
+          train_size: List[int] = typer.Option([], "--train-size", min=1, help="Nested train subset size (repeat)."),
           tag_: List[str] = typer.Option([], "--tag", help="Require this tag (repeat)."),
           min_: List[str] = typer.Option([], "--min", help="Quality threshold METRIC=VALUE (repeat)."),
           registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt, as_of: Optional[str] = AsOfOpt) -> None:
@@ -192,7 +192,7 @@ def verify(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
 
 @app.command()
 def gc(registry: Optional[str] = RegistryOpt, as_json: bool = JsonOpt,
-       grace_seconds: float = typer.Option(3600.0, "--grace-seconds",
+       grace_seconds: float = typer.Option(3600.0, "--grace-seconds", min=0.0, max=1e9,
                                            help="Keep unreferenced blobs younger than this."),
        dry_run: bool = typer.Option(False, "--dry-run"),
        force: bool = typer.Option(False, "--force", help="Delete unreferenced blobs even when the manifest "

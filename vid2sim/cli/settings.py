@@ -518,19 +518,23 @@ def apply_overrides(config: Any, sets: Optional[Sequence[str]]) -> Any:
     """A copy of dataclass `config` with every 'dotted.field=value' of `sets` applied, in order.
 
     Raises SettingError (one line, naming the field and the reason) on an unknown field or a value
-    that does not parse as the field's type. The input is not modified."""
+    that does not parse as the field's type, RangeError on a numeric field out of its range (any
+    field, set or not). The input is not modified."""
     return _apply_sets(config, sets)
 
 
 def _apply_sets(config: Any, sets: Optional[Sequence[str]], prefix: str = "") -> Any:
-    """`apply_overrides` for a config that sits at `prefix` (its paths given without it)."""
+    """`apply_overrides` for a config that sits at `prefix` (its paths given without it); the result's
+    numeric fields are range-checked (`vid2sim.cli.ranges`)."""
+    from vid2sim.cli.ranges import check_ranges
+
     for item in sets or ():
         path, raw = parse_set(item)
         try:
             config = _apply_one(config, path.split("."), raw, prefix)
         except SettingError as e:
             raise SettingError(f"--set {prefix}{item}: {e}") from None
-    return config
+    return check_ranges(config, prefix)
 
 
 def apply_or_exit(config: Any, sets: Optional[Sequence[str]], apply: Any = None) -> Any:

@@ -10,6 +10,7 @@ from typing import Optional
 import typer
 
 from vid2sim.cli.errors import InputError
+from vid2sim.cli.inputs import creatable_folder, existing_sources
 
 app = typer.Typer(help="Structure from motion and the metric, gravity-aligned frame.",
                   no_args_is_help=True)
@@ -40,6 +41,9 @@ def run(
 ) -> None:
     """SIFT + sequential matching + global mapper (incremental fallback) with a quality gate."""
     from vid2sim.factory.sfm import sfm
+
+    existing_sources([str(images)], "--images")
+    creatable_folder(str(out), "--out")
     from vid2sim.factory.sfm.camera_model import LensHint
 
     conf = sfm.preset(preset, camera_model=camera_model, camera_params=_floats(camera_params),
@@ -55,11 +59,14 @@ def run(
 def metric_cmd(
     sfm_dir: Path = typer.Option(..., "--sfm", help="A finished `vid2sim sfm run` output."),
     out: Path = typer.Option(..., "--out", help="PosedClip output folder."),
-    height: float = typer.Option(1.5, "--height", help="Capture height above the ground (m)."),
+    height: float = typer.Option(1.5, "--height", min=0.05, max=100.0, help="Capture height above the ground (m)."),
     gps_csv: str = typer.Option("", "--gps-csv", help="GoPro GPS5 CSV: scale from the walked distance."),
 ) -> None:
     """Ground plane -> z up, ground z = 0, metric scale; writes a PosedClip."""
     from vid2sim.factory.sfm import metric
+
+    existing_sources([str(sfm_dir)], "--sfm")
+    creatable_folder(str(out), "--out")
 
     out_dir = metric.main(metric.MetricConfig(capture_height_m=height, gps_csv=gps_csv), sfm_dir, out)
     info = json.loads((out_dir / "frame.json").read_text())

@@ -12,6 +12,8 @@ from rich.console import Console
 from rich.table import Table
 
 from vid2sim.cli.errors import InputError
+from vid2sim.cli.inputs import creatable_folder, registry_root
+from vid2sim.cli.ranges import check_ranges
 from vid2sim.cli.settings import apply_or_exit
 from vid2sim.training.actions import check_map
 from vid2sim.training.config import METHODS, DistillConfig, SACConfig, TrainConfig
@@ -94,28 +96,35 @@ def train_command(
     run_dir: str = typer.Option(..., "--run", help="Run folder (config, scenes, checkpoints, TensorBoard)."),
     method: str = typer.Option("sac", "--method", help="sac (paper preset) | distill (pixel student from the A* "
                                                        "teacher, DAgger)."),
-    steps: Optional[int] = typer.Option(None, "--steps", help="Env-step budget (default: sac 1.5M as the paper, "
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Env-step budget (default: sac 1.5M as the paper, "
                                                               "distill 80k)."),
-    split_seed: int = typer.Option(0, "--split-seed", help="Registry split seed."),
-    train_scenes: Optional[int] = typer.Option(None, "--train-scenes", help="Nested train subset size (default: all)."),
+    split_seed: int = typer.Option(0, "--split-seed", min=0, help="Registry split seed."),
+    train_scenes: Optional[int] = typer.Option(None, "--train-scenes", min=1,
+                                               help="Nested train subset size (default: all)."),
     task: str = typer.Option("PointNav", "--task", help="PointNav | SocialNav"),
     variant: str = typer.Option("rgb", "--variant", help="rgb | depth | mesh-rgb"),
-    n_envs: int = typer.Option(4, "--envs", help="Parallel environments."),
-    n_actors: int = typer.Option(2, "--actors", help="Ray actors hosting the envs (0: in-process)."),
-    seed: int = typer.Option(0, "--seed"),
-    learning_starts: Optional[int] = typer.Option(None, "--learning-starts", help="sac: override the paper's 10000."),
-    batch_size: Optional[int] = typer.Option(None, "--batch-size", help="sac: override the paper's 256."),
-    buffer_size: Optional[int] = typer.Option(None, "--buffer-size", help="sac: replay cap (also capped by memory)."),
-    checkpoint_every: int = typer.Option(10_000, "--checkpoint-every", help="sac: env steps between checkpoints."),
+    n_envs: int = typer.Option(4, "--envs", min=1, help="Parallel environments."),
+    n_actors: int = typer.Option(2, "--actors", min=0, help="Ray actors hosting the envs (0: in-process)."),
+    seed: int = typer.Option(0, "--seed", min=0),
+    learning_starts: Optional[int] = typer.Option(None, "--learning-starts", min=0,
+                                                  help="sac: override the paper's 10000."),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size", min=1, help="sac: override the paper's 256."),
+    buffer_size: Optional[int] = typer.Option(None, "--buffer-size", min=1,
+                                              help="sac: replay cap (also capped by memory)."),
+    checkpoint_every: int = typer.Option(10_000, "--checkpoint-every", min=1,
+                                         help="sac: env steps between checkpoints."),
     action_map: str = typer.Option("clamp", "--action-map",
                                    help="sac: clamp (the envs' speed contract) | full (speed = (a + 1) / 2)."),
-    steps_per_round: int = typer.Option(4000, "--steps-per-round", help="distill: env steps collected per round."),
-    updates_per_round: int = typer.Option(1500, "--updates-per-round", help="distill: learner steps per round."),
-    beta_decay: float = typer.Option(0.5, "--beta-decay", help="distill: teacher's episode share x this per round."),
-    frames: int = typer.Option(2, "--frames", help="distill: most recent frames the student sees (1-6)."),
-    pool: int = typer.Option(2, "--pool", help="distill: frame down-sampling factor (2: 36 x 64)."),
-    shift_pad: int = typer.Option(4, "--shift-pad", help="distill: random-shift augmentation in pixels (0: off)."),
-    stuck_steps: int = typer.Option(10, "--stuck-steps", help="distill: end a training episode after this many "
+    steps_per_round: int = typer.Option(4000, "--steps-per-round", min=1,
+                                        help="distill: env steps collected per round."),
+    updates_per_round: int = typer.Option(1500, "--updates-per-round", min=1, help="distill: learner steps per round."),
+    beta_decay: float = typer.Option(0.5, "--beta-decay", min=0.0, max=1.0,
+                                     help="distill: teacher's episode share x this per round."),
+    frames: int = typer.Option(2, "--frames", min=1, max=6, help="distill: most recent frames the student sees (1-6)."),
+    pool: int = typer.Option(2, "--pool", min=1, help="distill: frame down-sampling factor (2: 36 x 64)."),
+    shift_pad: int = typer.Option(4, "--shift-pad", min=0,
+                                  help="distill: random-shift augmentation in pixels (0: off)."),
+    stuck_steps: int = typer.Option(10, "--stuck-steps", min=0, help="distill: end a training episode after this many "
                                                               "control steps without motion (0: never)."),
     checkout_root: Optional[str] = typer.Option(None, "--checkout-root", help="Scene checkouts (and their sim-ready "
                                                 "sets) shared between runs (default: RUN/scenes)."),
@@ -125,9 +134,12 @@ def train_command(
                                              "(e.g. distill.beta_decay=0.7, sac.tau=0.01); see `vid2sim config show "
                                              "train`. Repeatable."),
     ray_address: Optional[str] = typer.Option(None, "--ray-address", help="Ray cluster (default: local runtime)."),
-    num_cpus: Optional[int] = typer.Option(None, "--num-cpus", help="Local Ray runtime CPUs."),
+    num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="Local Ray runtime CPUs."),
 ) -> None:
     """Train SAC (paper preset) or distil a pixel student from the A* teacher on a registry split's training scenes."""
+    registry_root(registry)
+    creatable_folder(run_dir, "--run")
+    creatable_folder(checkout_root, "--checkout-root")
     if resume:
         _refuse_changes_on_resume(ctx, run_dir)
         config = _resumed_config(run_dir, steps)
@@ -160,26 +172,29 @@ def study_command(
     registry: str = typer.Option(..., "--registry", help="Registry root."),
     out_dir: str = typer.Option(..., "--out", help="Study folder (runs, study.json, study.png)."),
     counts: str = typer.Option("1,5,15,25,30", "--counts", help="Training-scene counts (each <= the train pool)."),
-    seeds: int = typer.Option(3, "--seeds", help="Trainings per count."),
+    seeds: int = typer.Option(3, "--seeds", min=1, help="Trainings per count."),
     method: str = typer.Option("sac", "--method", help="sac | distill (pixel student from the A* teacher)."),
-    steps: Optional[int] = typer.Option(None, "--steps", help="Env steps per training (default: sac 20k, "
+    steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Env steps per training (default: sac 20k, "
                                                               "distill 80k)."),
-    steps_per_round: int = typer.Option(4000, "--steps-per-round", help="distill: env steps collected per round."),
-    updates_per_round: int = typer.Option(1500, "--updates-per-round", help="distill: learner steps per round."),
-    trials: int = typer.Option(25, "--trials", help="Episodes per held-out test scene."),
-    split_seed: int = typer.Option(0, "--split-seed"),
-    n_envs: int = typer.Option(2, "--envs", help="Envs per training (in the training's Ray task)."),
+    steps_per_round: int = typer.Option(4000, "--steps-per-round", min=1,
+                                        help="distill: env steps collected per round."),
+    updates_per_round: int = typer.Option(1500, "--updates-per-round", min=1, help="distill: learner steps per round."),
+    trials: int = typer.Option(25, "--trials", min=1, help="Episodes per held-out test scene."),
+    split_seed: int = typer.Option(0, "--split-seed", min=0),
+    n_envs: int = typer.Option(2, "--envs", min=1, help="Envs per training (in the training's Ray task)."),
     obstacles: str = typer.Option("static", "--obstacles", help="Evaluation obstacles: none | static | dynamic"),
-    learning_starts: Optional[int] = typer.Option(None, "--learning-starts"),
-    batch_size: Optional[int] = typer.Option(None, "--batch-size"),
-    buffer_size: Optional[int] = typer.Option(None, "--buffer-size"),
+    learning_starts: Optional[int] = typer.Option(None, "--learning-starts", min=0),
+    batch_size: Optional[int] = typer.Option(None, "--batch-size", min=1),
+    buffer_size: Optional[int] = typer.Option(None, "--buffer-size", min=1),
     ray_address: Optional[str] = typer.Option(None, "--ray-address"),
-    num_cpus: Optional[int] = typer.Option(None, "--num-cpus"),
+    num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1),
     env: str = typer.Option("pixel", "--env", help="pixel (PointNav RGB) | privileged (goal vector + ranges)"),
-    eval_max_steps: Optional[int] = typer.Option(None, "--eval-max-steps", help="Evaluation episode limit."),
+    eval_max_steps: Optional[int] = typer.Option(None, "--eval-max-steps", min=1, help="Evaluation episode limit."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
     """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
+    registry_root(registry)
+    creatable_folder(out_dir, "--out")
     method = _method(method)
     steps = steps or {"sac": 20_000, "distill": DEFAULT_STEPS["distill"]}[method]
     env_ids = _study_env("pixel" if method == "distill" else env)
@@ -191,6 +206,7 @@ def study_command(
                          stuck_steps=10 if method == "distill" else None,
                          distill=replace(DistillConfig(), steps_per_round=steps_per_round,
                                          updates_per_round=updates_per_round), **env_ids)
+    check_ranges(config)
     _ray(ray_address, num_cpus)
     rows = run_study(config)
     if as_json:

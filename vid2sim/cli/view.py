@@ -15,10 +15,11 @@ def view_command(
     episode: Optional[Path] = typer.Option(None, "--episode",
                                            help="Replay an episode: its .trace.json, its MP4, or an `eval policy "
                                                 "--record N --out REPORT.json` report."),
-    index: int = typer.Option(0, "--index", help="Which recorded episode of an evaluation report (0-based)."),
-    port: int = typer.Option(8080, "--port", help="Port to serve on."),
+    index: int = typer.Option(0, "--index", min=0,
+                              help="Which recorded episode of an evaluation report (0-based)."),
+    port: int = typer.Option(8080, "--port", min=1, max=65535, help="Port to serve on."),
     host: str = typer.Option("127.0.0.1", "--host", help="Interface to listen on (0.0.0.0: every interface)."),
-    max_splats: int = typer.Option(400_000, "--max-splats",
+    max_splats: int = typer.Option(400_000, "--max-splats", min=1,
                                    help="Splat budget: at most this many Gaussians go to the browser (the ones "
                                         "with the largest opacity x area)."),
 ) -> None:

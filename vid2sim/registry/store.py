@@ -169,6 +169,11 @@ class Registry:
             raise RegistryNotFound(f"no registry at {self.root} (no manifest log under manifests/; "
                                    f"`registry add` creates one)")
 
+    def require(self) -> "Registry":
+        """This registry; RegistryNotFound / HistoryLost when the root holds none (creates nothing)."""
+        self._require_registry()
+        return self
+
     def _require_registry(self) -> None:
         """RegistryNotFound / HistoryLost unless the root holds a registry (never creates one)."""
         self._check_root()
