@@ -18,7 +18,7 @@ import pytest
 
 CANDIDATES = ("chromium", "chromium-browser", "google-chrome")
 ARGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--no-sandbox"]
-VIEWPORT = {"width": 800, "height": 500}
+VIEWPORT = {"width": 560, "height": 360}
 
 
 def chromium_path() -> str:

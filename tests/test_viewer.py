@@ -76,10 +76,10 @@ def test_scene_card_shows_source_licence_and_corridor(bundle) -> None:
 def test_scene_id_from_registry_and_unknown_id(tmp_path, bundle) -> None:
     reg = Registry(tmp_path / "reg")
     reg.add(bundle)
-    out = resolve_bundle("scene-a", str(reg.root))
-    assert (out / "splats.ply").is_file()
+    out = resolve_bundle("scene-a", str(reg.root), tmp_path / "co")
+    assert (out / "splats.ply").is_file() and out.parent == tmp_path / "co"
     with pytest.raises(UnknownScene, match="unknown scene 'nope'.*scene-a"):
-        resolve_bundle("nope", str(reg.root))
+        resolve_bundle("nope", str(reg.root), tmp_path / "co")
     with pytest.raises(UnknownScene, match="no registry there"):
         resolve_bundle("nope", str(tmp_path / "empty"))
 

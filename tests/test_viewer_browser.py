@@ -33,7 +33,7 @@ def free_port() -> int:
 
 @pytest.fixture(scope="module")
 def world(tmp_path_factory):
-    """(registry root, bundle folder, trace file of one recorded expert episode)."""
+    """(registry root, bundle folder, trace file of one recorded expert episode, checkout folder)."""
     root = tmp_path_factory.mktemp("viewer")
     bundle = street_bundle(root, n_splats=5_000)
     reg = Registry(root / "registry")
@@ -42,7 +42,7 @@ def world(tmp_path_factory):
                          training=False)
     video = record_episodes(env, root / "videos", 1, PurePursuitExpert(), seed=3)[0]
     env.close()
-    return str(reg.root), bundle, trace_path(video)
+    return str(reg.root), bundle, trace_path(video), root / "co"
 
 
 @pytest.fixture(scope="module")
@@ -67,7 +67,7 @@ def _open(page, viewer) -> np.ndarray:
 
 
 def test_scene_page_loads_and_mesh_toggle_changes_pixels(world, page) -> None:
-    _, bundle, _ = world
+    _, bundle, _, _ = world
     viewer = open_viewer(str(bundle), port=free_port(), budget=BUDGET)
     try:
         before = _open(page, viewer)
@@ -85,8 +85,8 @@ def test_scene_page_loads_and_mesh_toggle_changes_pixels(world, page) -> None:
 
 
 def test_episode_player_moves_the_robot(world, page) -> None:
-    registry, _, trace = world
-    viewer = open_viewer(episode=trace, registry=registry, port=free_port(), budget=BUDGET)
+    registry, _, trace, checkouts = world
+    viewer = open_viewer(episode=trace, registry=registry, port=free_port(), budget=BUDGET, checkouts=checkouts)
     try:
         start = _open(page, viewer)
         robot0 = np.array(viewer.player.robot.position)
@@ -100,5 +100,25 @@ def test_episode_player_moves_the_robot(world, page) -> None:
         moved = settled(page, ok=lambda a: changed_fraction(start, a) > 0.0005)
         assert changed_fraction(start, moved) > 0.0005, "the robot did not move on the page"
         assert page.get_by_text("robot camera").count()
+    finally:
+        viewer.stop()
+
+
+def test_registry_page_lists_scenes_and_opens_one(world, page) -> None:
+    registry, _, _, checkouts = world
+    viewer = open_viewer(registry=registry, port=free_port(), budget=BUDGET, checkouts=checkouts)
+    try:
+        page.goto(viewer.url)
+        page.wait_for_selector("canvas", timeout=120_000)
+        page.get_by_text("Registry: 1 scenes").wait_for(timeout=60_000)
+        assert page.get_by_text("split:").count() and page.get_by_role("img").count()  # entry and its preview
+        empty = settled(page)
+        page.get_by_role("button", name=f"Open {SCENE}").click()
+        deadline = time.monotonic() + 60
+        while viewer.layers is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert viewer.layers is not None and viewer.layers.scene_id == SCENE
+        shown = settled(page, ok=lambda a: changed_fraction(empty, a) > 0.05)
+        assert changed_fraction(empty, shown) > 0.05, "opening the scene did not draw it"
     finally:
         viewer.stop()

@@ -58,10 +58,11 @@ class Viewer:
         self.server.stop()
 
 
-def _opener(viewer: Viewer, registry: Optional[str], budget: int) -> Callable[[str], None]:
+def _opener(viewer: Viewer, registry: Optional[str], budget: int, checkouts: Optional[Path]
+            ) -> Callable[[str], None]:
     def open_scene(scene_id: str) -> None:
         try:
-            viewer.show(load_layers(resolve_bundle(scene_id, registry), budget))
+            viewer.show(load_layers(resolve_bundle(scene_id, registry, checkouts), budget))
         except ViewerError as e:
             viewer.notify("Cannot open scene", str(e), "red")
     return open_scene
@@ -69,17 +70,18 @@ def _opener(viewer: Viewer, registry: Optional[str], budget: int) -> Callable[[s
 
 def open_viewer(target: Optional[str] = None, *, registry: Optional[str] = None, episode: Optional[Path] = None,
                 episode_index: int = 0, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
-                budget: int = DEFAULT_BUDGET) -> Viewer:
+                budget: int = DEFAULT_BUDGET, checkouts: Optional[Path] = None) -> Viewer:
     """Start the viewer on a scene (folder or id), an episode, or (neither) the registry page.
 
-    Every input is resolved before the port is taken, so bad input fails without a server."""
+    Every input is resolved before the port is taken, so bad input fails without a server.
+    Registry scenes are checked out under `checkouts` (default $VID2SIM_CHECKOUTS)."""
     source = resolve_episode(episode, episode_index) if episode is not None else None
     layers, reg = None, None
     if source is not None:
         registry = registry or source.registry
-        layers = load_layers(resolve_bundle(target or source.trace.scene_id, registry), budget)
+        layers = load_layers(resolve_bundle(target or source.trace.scene_id, registry, checkouts), budget)
     elif target is not None:
-        layers = load_layers(resolve_bundle(target, registry), budget)
+        layers = load_layers(resolve_bundle(target, registry, checkouts), budget)
     else:
         reg = open_registry(registry)
     server = start_server(host, port, label="vid2sim")
@@ -94,7 +96,7 @@ def open_viewer(target: Optional[str] = None, *, registry: Optional[str] = None,
     if source is not None:
         viewer.player = show_episode(server, source)
     if reg is not None:
-        viewer.registry_gui = show_registry(server, reg, _opener(viewer, str(reg.root), budget))
+        viewer.registry_gui = show_registry(server, reg, _opener(viewer, str(reg.root), budget, checkouts))
     return viewer
 
 

@@ -33,8 +33,9 @@ def open_registry(root: Optional[str]) -> Registry:
     return reg
 
 
-def resolve_bundle(target: str, registry: Optional[str] = None) -> Path:
-    """A bundle folder for `target` (an existing folder, or SCENE[@V] of the registry)."""
+def resolve_bundle(target: str, registry: Optional[str] = None, checkouts: Optional[Path] = None) -> Path:
+    """A bundle folder for `target` (an existing folder, or SCENE[@V] of the registry, checked out
+    under `checkouts` (default `checkout_root()`) in a folder named by its ref and content hash)."""
     if Path(target).is_dir():
         return Path(target)
     try:
@@ -48,4 +49,5 @@ def resolve_bundle(target: str, registry: Optional[str] = None) -> Path:
         known = ", ".join(r.scene_id for r in reg.list()[:8]) or "none"
         raise UnknownScene(f"unknown scene {target!r}: not a folder and not in the registry at {reg.root} "
                            f"(scenes there: {known})") from None
-    return reg.checkout(rec.scene_id, rec.version, dest=checkout_root() / rec.ref)
+    dest = Path(checkouts or checkout_root()) / f"{rec.ref}-{rec.content_hash[:12]}"
+    return reg.checkout(rec.scene_id, rec.version, dest=dest)
