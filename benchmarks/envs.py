@@ -9,18 +9,26 @@ wall-clock is polluted by other load) for the exact render and the fast render (
 `EnvConfig.fidelity="fast"`, at each `--fast` keep_mass[:fit_iterations]), CPU ms per step
 split into render (splats or mesh), physics, obstacles, pedestrians, augment, reward, other
 (frame stacking, info, goal vector, wrappers; the expert's own time is left out); PSNR of the
-fast splat RGB render against the exact one at the steps' own camera poses (depth runs too).
+fast splat RGB render against the exact one at every 10th step's camera pose, mean and worst
+over the poses (identical images count as 99 dB; depth runs too).
+
+Factory scenes by name (`--scenes demo gopro`): the bundles `benchmarks/env_scenes.py` builds
+and caches (the `make demo` street; the shared GoPro clip from ../shared/data); one that is not
+built is skipped with the command that builds it.
 
 Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
-       [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt] [--no-speed]
-       [--no-expert] [--fast 0.85:600 0.9:600 0.9 0.95] [--no-exact] [--quick]
---quick: one 75k GT bundle, 3 expert episodes, 60 speed steps, fast path 0.9 without fit (smoke run).
+       [--scenes demo gopro] [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt]
+       [--no-speed] [--no-expert] [--fast default 0.85:600 0.95] [--no-exact] [--quick]
+--fast: `default` is the env's default fast path (FastRenderConfig()); KEEP[:FIT] changes
+keep_mass (and fit iterations) from it.
+--quick: one 75k GT bundle, 3 expert episodes, 60 speed steps, the default fast path (smoke run).
 """
 
 from __future__ import annotations
 
 import argparse
 from collections import Counter
+from dataclasses import replace
 import tempfile
 import time
 from pathlib import Path
@@ -30,6 +38,7 @@ import numba
 import numpy as np
 
 from common import Run, add_run_args
+from env_scenes import CACHE as SCENE_CACHE, find_bundle, scene_id
 import vid2sim.envs  # noqa: F401  (registers the env ids)
 from vid2sim.envs.config import FastRenderConfig, RewardConfig
 from vid2sim.envs.expert import PurePursuitExpert
@@ -91,10 +100,13 @@ def expert_table(run: Run, label: str, root: str, scene: str, episodes: int, max
     return summarize(records), ends
 
 
+PSNR_SAME = 99.0  # dB counted for identical images (so that a mean over poses stays finite)
+
+
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR (dB) of uint8 images a vs b [H, W, 3]."""
+    """PSNR (dB) of uint8 images a vs b [H, W, 3]; PSNR_SAME when they are identical."""
     mse = float(((a.astype(np.float64) - b.astype(np.float64)) ** 2).mean())
-    return float("inf") if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
+    return PSNR_SAME if mse == 0 else 10 * np.log10(255.0 ** 2 / mse)
 
 
 def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: str,
@@ -137,6 +149,15 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: 
     return done_steps / cpu, done_steps / wall, parts, quality, n_splats
 
 
+def fast_config(spec: str) -> tuple[FastRenderConfig, str]:
+    """The fast path setting a --fast entry names, and its label."""
+    if spec == "default":
+        return FastRenderConfig(), "fast (default)"
+    keep, _, fit = spec.partition(":")
+    label = f"fast k={keep}" + (f" fit {fit}" if fit else "")
+    return replace(FastRenderConfig(), keep_mass=float(keep), fit_iterations=int(fit or 0)), label
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--episodes", type=int, default=20)
@@ -151,10 +172,11 @@ def main() -> None:
     ap.add_argument("--gt-splats", type=int, nargs="*", default=[],
                     help="splat counts of the synthetic GT bundles (default 75k, and 200k for speed)")
     ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
-    ap.add_argument("--fast", nargs="+", default=["0.85:600", "0.9:600", "0.9", "0.95"],
-                    metavar="KEEP[:FIT]",
-                    help="fast path settings to measure: sim-ready keep_mass, optionally with "
-                         "fit iterations (e.g. 0.9:600; the env default is 0.85:600)")
+    ap.add_argument("--scenes", nargs="*", default=[], metavar="NAME",
+                    help="factory scenes built by benchmarks/env_scenes.py (demo, gopro)")
+    ap.add_argument("--fast", nargs="+", default=["default"], metavar="default|KEEP[:FIT]",
+                    help="fast path settings to measure: 'default' (the env's default), or a "
+                         "sim-ready keep_mass, optionally with fit iterations (e.g. 0.9:600)")
     ap.add_argument("--max-steps", type=int, default=600,
                     help="expert episodes: step limit (the env default is the paper's 3000)")
     ap.add_argument("--quick", action="store_true",
@@ -163,7 +185,7 @@ def main() -> None:
     args = ap.parse_args()
     if args.quick:
         args.episodes, args.steps = min(args.episodes, 3), min(args.steps, 60)
-        args.gt_splats, args.fast = args.gt_splats or [75_000], ["0.9"]
+        args.gt_splats, args.fast = args.gt_splats or [75_000], ["default"]
     numba.set_num_threads(1)
     with Run("envs", args, config={"numba_threads": 1}) as run:
         bench(run, args)
@@ -173,6 +195,12 @@ def bench(run: Run, args: argparse.Namespace) -> None:
     print("numba threads: 1")
     scenes: list[tuple[str, str, str]] = []
     pairs = ([(args.registry, args.scene)] if args.registry and args.scene else []) + args.factory
+    for name in args.scenes:
+        bundle = find_bundle(name)
+        if bundle is None:
+            run.skip(name, f"not built: .venv/bin/python benchmarks/env_scenes.py {name}")
+            continue
+        pairs.append((str(SCENE_CACHE / name / "registry"), scene_id(bundle)))
     for root, sid in pairs:
         n = Registry(root).show(sid).num_splats
         scenes.append((root, sid, f"{sid} (factory, {n // 1000}k splats)"))
@@ -207,10 +235,8 @@ def bench(run: Run, args: argparse.Namespace) -> None:
     for root, sid, label in scenes:
         for task, variant in SPEED_RUNS:
             for fidelity, spec in paths:
-                keep, _, fit = spec.partition(":")
-                conf = FastRenderConfig(keep_mass=float(keep or 0.9), fit_iterations=int(fit or 0))
+                conf, name = fast_config(spec) if fidelity == "fast" else (FastRenderConfig(), "exact")
                 sps, wps, parts, q, n = speed(root, sid, task, variant, args.steps, fidelity, conf)
-                name = "exact" if fidelity == "exact" else f"fast k={keep}" + (f" fit {fit}" if fit else "")
                 qual = f"{np.mean(q):.1f} ({min(q):.1f})" if q else "-"
                 run.record_all(f"{label}: {task} {variant}, {name}",
                                {"splats": n, "steps_per_cpu_s": sps, "steps_per_wall_s": wps,
