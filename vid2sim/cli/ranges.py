@@ -103,12 +103,18 @@ def numeric_fields(config: Any, prefix: str = "") -> Iterator[tuple[str, Any]]:
             yield f"{prefix}{f.name}", value
 
 
+def check_value(path: str, value: Any) -> Any:
+    """`value` of the field at dotted `path` unchanged; RangeError when a number of it is out of range."""
+    rng = field_range(path.rsplit(".", 1)[-1])
+    bad = [v for v in _numbers(value) if not rng.holds(v)]
+    if bad:
+        finite = any(isinstance(v, float) for v in _numbers(value))
+        raise RangeError(f"{path}: {bad[0]!r} is out of range (must be {rng.describe(finite)})")
+    return value
+
+
 def check_ranges(config: Any, prefix: str = "") -> Any:
     """`config` unchanged; RangeError naming the first field outside its range."""
     for path, value in numeric_fields(config, prefix):
-        rng = field_range(path.rsplit(".", 1)[-1])
-        bad = [v for v in _numbers(value) if not rng.holds(v)]
-        if bad:
-            finite = any(isinstance(v, float) for v in _numbers(value))
-            raise RangeError(f"{path}: {bad[0]!r} is out of range (must be {rng.describe(finite)})")
+        check_value(path, value)
     return config

@@ -495,7 +495,9 @@ def _apply_one(obj: Any, parts: list[str], raw: Any, prefix: str) -> Any:
             value = _apply_one(value, str(key).split("."), item if isinstance(item, str) else json.dumps(item),
                                path + ".")
     else:
-        value = parse_value(_with_item_type(tp, current), raw, path)
+        from vid2sim.cli.ranges import check_value
+
+        value = check_value(path, parse_value(_with_item_type(tp, current), raw, path))
     try:
         return dataclasses.replace(obj, **{name: value})
     except (ValueError, TypeError) as e:  # the config's own validation (__post_init__)
@@ -533,7 +535,7 @@ def _apply_sets(config: Any, sets: Optional[Sequence[str]], prefix: str = "") ->
         try:
             config = _apply_one(config, path.split("."), raw, prefix)
         except SettingError as e:
-            raise SettingError(f"--set {prefix}{item}: {e}") from None
+            raise type(e)(f"--set {prefix}{item}: {e}") from None
     return check_ranges(config, prefix)
 
 
