@@ -117,3 +117,17 @@ def test_vectorised_mesh_matches_the_per_part_reference(client: int) -> None:
     ref = np.concatenate([v for w in crowd.walkers for v in w.world_vertices()])  # [V, 3]
     assert np.allclose(verts, ref, atol=1e-5)
     assert faces.max() == len(verts) - 1 and len(colors) == len(faces)
+
+
+def test_path_point_equals_numpy_interp() -> None:
+    """The numba path point is `np.interp` per axis (ends clamped, repeated waypoints kept)."""
+    from vid2sim.envs.pedestrians import _path_point
+
+    rng = np.random.default_rng(2)
+    path = np.cumsum(rng.normal(0, 1, (12, 2)), axis=0)
+    path[5] = path[4]  # a zero-length segment
+    arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(path, axis=0), axis=1))])
+    for s in [-1.0, 0.0, *rng.uniform(0, arc[-1], 50), *arc, arc[-1] + 2.0]:
+        x, y = _path_point(path, arc, float(s))
+        assert np.isclose(x, np.interp(s, arc, path[:, 0]), rtol=0, atol=1e-12)
+        assert np.isclose(y, np.interp(s, arc, path[:, 1]), rtol=0, atol=1e-12)
