@@ -89,7 +89,7 @@ def evaluate(run: Run, detector: str, scenes: list, clean: list) -> None:
         return
     hits: dict = {b: [] for b in FACE_BANDS}
     kinds: dict = {"frontal sharp": [], "turned (yaw >= 0.3)": [], "motion blur": [], "roll >= 15 deg": []}
-    fps_, secs = 0, []
+    fps_, secs, missed = 0, [], []
     for c in scenes:
         t = time.perf_counter()
         boxes = anon.detect_faces(c.image)
@@ -97,6 +97,8 @@ def evaluate(run: Run, detector: str, scenes: list, clean: list) -> None:
         cov = coverage(blur_mask(c.image.shape[:2], boxes, anon.faces.pad), c.faces)
         for pose, v in zip(c.poses, cov):
             hits[band(pose.size, FACE_BANDS)].append(v >= FACE_HIT)
+            if v < FACE_HIT and pose.size >= 24:
+                missed.append(f"{pose.size} px yaw {pose.yaw:g} roll {pose.roll_deg:.0f} motion {pose.motion_px}")
             if pose.size >= 24:
                 for k in condition(pose):
                     kinds[k].append(v >= FACE_HIT)
@@ -114,6 +116,9 @@ def evaluate(run: Run, detector: str, scenes: list, clean: list) -> None:
     for k, h in kinds.items():
         print(f"  >= 24 px, {k:<20} recall {np.mean(h):.3f} ({sum(h)}/{len(h)})")
         run.record(f"faces {detector}, >= 24 px, {k}", "recall", float(np.mean(h)))
+    if missed and len(missed) <= 12:
+        run.note(f"{detector} missed at >= 24 px: " + "; ".join(missed))
+        print(f"  missed at >= 24 px: {'; '.join(missed)}")
     run.record_all(f"faces {detector}", {"s_per_frame": spf, "false_positives": fps_, "frames": len(scenes),
                                          "fp_per_frame": fps_ / len(scenes),
                                          "blurred_area_mean": float(np.mean(areas)),
