@@ -20,7 +20,8 @@ Env contract
   pedestrians (`EpisodeConfig.pedestrians`) stepped once per control step. Augmentation and
   camera jitter are on when `training` (default), off for evaluation (`training=False`).
 - Render fidelity (`EnvConfig.fidelity`): "fast" (default when training: the scene's sim-ready
-  set through the approximate fast kernels, ~30 dB PSNR vs exact on the demo factory scene) or
+  set through the approximate fast kernels, 36 dB mean / 27 dB worst PSNR vs exact at the
+  expert's poses on the GoPro factory scene) or
   "exact" (default for evaluation); see `envs/config.py` and `envs/simready.py`.
 - info: distance, collided, collision_events, end, reward terms, scene_id; on the last step
   also `nav_episode` (a `metrics.EpisodeRecord`; not `episode`, which SB3's Monitor owns).
