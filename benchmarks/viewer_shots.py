@@ -61,9 +61,8 @@ def main() -> None:
         page.goto(viewer.url)
         page.wait_for_selector("canvas", timeout=300_000)
         time.sleep(3.0)
-        notice = page.locator("[class*='Notification-root']", has_text="Software WebGL")
-        for button in notice.locator("button").all():  # the software-WebGL notice is not the scene's
-            button.click()
+        page.evaluate("""() => document.querySelectorAll("[class*='Notification-root']").forEach(
+            n => { if (n.textContent.includes('Software WebGL')) n.remove(); })""")  # not the scene's
         wait_still(page)
         a.out.parent.mkdir(parents=True, exist_ok=True)
         page.screenshot(path=str(a.out), timeout=300_000)

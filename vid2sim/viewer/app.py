@@ -92,7 +92,7 @@ def open_viewer(target: Optional[str] = None, *, registry: Optional[str] = None,
         for msg in viewer.messages:
             client.add_notification("Missing layers", msg, auto_close_seconds=None, color="yellow")
     if layers is not None:
-        viewer.show(layers, hidden=("collision mesh",) if source is not None else ())
+        viewer.show(layers, hidden=("collision mesh", "camera path") if source is not None else ())
     if source is not None:
         viewer.player = show_episode(server, source)
     if reg is not None:

@@ -120,7 +120,7 @@ def look_at_episode(server: viser.ViserServer, t: EpisodeTrace) -> None:
     """Initial camera: above and behind the episode's start, its path and goal in view."""
     pts = np.concatenate([np.asarray(t.xy, np.float64), np.asarray(t.goal, np.float64).reshape(1, 2)])
     centre = np.append((pts.min(0) + pts.max(0)) / 2, 0.0)
-    span = max(float(np.linalg.norm(pts.max(0) - pts.min(0))), 3.0)
+    span = max(float(np.linalg.norm(pts.max(0) - pts.min(0))), 6.0)
     heading = np.asarray(t.goal, np.float64) - np.asarray(t.xy[0], np.float64)
     back = -heading / max(float(np.linalg.norm(heading)), 1e-6)
     server.initial_camera.look_at = tuple(centre)
