@@ -78,10 +78,6 @@ def policy(
     as_json: bool = typer.Option(False, "--json", help="Print the JSON report."),
 ) -> None:
     """Navigation policy on held-out scenes: SR, SPL, Cost, SNS with 95 % bootstrap intervals."""
-    from vid2sim.cli.inputs import creatable_folder, registry_root
-
-    registry_root(registry)
-    creatable_folder(str(out.parent) if out else None, "--out")
     from rich.console import Console
     from rich.table import Table
 
@@ -94,6 +90,10 @@ def policy(
                         record=record, record_dir=str(record_dir) if record else None)
     from vid2sim.cli.settings import apply_eval_overrides, apply_or_exit
     config = apply_or_exit(config, sets, apply_eval_overrides)
+    from vid2sim.cli.inputs import creatable_folder, registry_root
+
+    registry_root(registry)
+    creatable_folder(str(out.parent) if out else None, "--out")
     report = evaluate(config)
     if out:
         out.write_text(report.to_json())

@@ -55,15 +55,15 @@ def ingest_command(
     from vid2sim.cli.inputs import creatable_folder, existing_sources
     from vid2sim.cli.settings import apply_or_exit
 
-    existing_sources(inputs)
-    creatable_folder(registry, "--registry")
-    creatable_folder(workdir, "--workdir")
     console = Console(stderr=True)
     try:
         conf = PipelineConfig.load(config) if config else make_preset(preset)
     except (ValueError, TypeError, OSError) as e:
         raise InputError("--config" if config else "--preset", str(e)) from None
     conf = apply_or_exit(conf, sets)
+    existing_sources(inputs)
+    creatable_folder(registry, "--registry")
+    creatable_folder(workdir, "--workdir")
     holder: dict = {}
 
     def on_plan(ids: list[str]) -> None:

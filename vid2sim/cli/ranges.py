@@ -19,10 +19,9 @@ import re
 from dataclasses import dataclass
 from typing import Any, Iterator, Optional
 
-from vid2sim.cli.settings import SettingError
 
 
-class RangeError(SettingError):
+class RangeError(ValueError):
     """A numeric config field (or option) is outside its valid range or not finite."""
 
 

@@ -257,8 +257,10 @@ def checkout(ref: str = typer.Argument(..., help="SCENE or SCENE@VERSION"),
     """Materialise a scene bundle folder (hash-verified) for the envs."""
     from vid2sim.registry.store import parse_ref
 
+    from vid2sim.cli.inputs import creatable_folder
+
     scene, version = parse_ref(ref)
-    out = _open(registry).checkout(scene, version, dest)
+    out = _open(registry).checkout(scene, version, creatable_folder(dest, "--dest"))
     if as_json:
         _echo_json({"path": str(out)})
     else:

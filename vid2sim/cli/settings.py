@@ -33,6 +33,8 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
+from vid2sim.cli.ranges import RangeError, check_ranges, check_value
+
 MISSING = dataclasses.MISSING
 
 
@@ -495,8 +497,6 @@ def _apply_one(obj: Any, parts: list[str], raw: Any, prefix: str) -> Any:
             value = _apply_one(value, str(key).split("."), item if isinstance(item, str) else json.dumps(item),
                                path + ".")
     else:
-        from vid2sim.cli.ranges import check_value
-
         value = check_value(path, parse_value(_with_item_type(tp, current), raw, path))
     try:
         return dataclasses.replace(obj, **{name: value})
@@ -528,13 +528,11 @@ def apply_overrides(config: Any, sets: Optional[Sequence[str]]) -> Any:
 def _apply_sets(config: Any, sets: Optional[Sequence[str]], prefix: str = "") -> Any:
     """`apply_overrides` for a config that sits at `prefix` (its paths given without it); the result's
     numeric fields are range-checked (`vid2sim.cli.ranges`)."""
-    from vid2sim.cli.ranges import check_ranges
-
     for item in sets or ():
         path, raw = parse_set(item)
         try:
             config = _apply_one(config, path.split("."), raw, prefix)
-        except SettingError as e:
+        except (SettingError, RangeError) as e:
             raise type(e)(f"--set {prefix}{item}: {e}") from None
     return check_ranges(config, prefix)
 

@@ -137,9 +137,6 @@ def train_command(
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1, help="Local Ray runtime CPUs."),
 ) -> None:
     """Train SAC (paper preset) or distil a pixel student from the A* teacher on a registry split's training scenes."""
-    registry_root(registry)
-    creatable_folder(run_dir, "--run")
-    creatable_folder(checkout_root, "--checkout-root")
     if resume:
         _refuse_changes_on_resume(ctx, run_dir)
         config = _resumed_config(run_dir, steps)
@@ -155,6 +152,9 @@ def train_command(
                              stuck_steps=(stuck_steps or None) if method == "distill" else None,
                              distill=_distill(steps_per_round, updates_per_round, beta_decay, frames, pool, shift_pad))
         config = apply_or_exit(config, sets)
+    registry_root(registry)
+    creatable_folder(run_dir, "--run")
+    creatable_folder(checkout_root, "--checkout-root")
     if config.n_actors > 0:
         _ray(ray_address, num_cpus)
     if config.method == "distill":

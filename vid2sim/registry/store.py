@@ -75,6 +75,9 @@ class RegistryConfig:
     auto_compact_files: int = 50
 
 
+MANIFEST_SCHEMES = ("s3", "s3a", "gs", "gcs", "az", "abfs", "abfss", "azure", "adl")  # object stores delta-rs opens
+
+
 def default_root() -> str:
     return os.environ.get("VID2SIM_REGISTRY") or DEFAULT_ROOT
 
@@ -123,7 +126,13 @@ class Registry:
             table_uri = str(local / "manifests")
         else:
             self.root = root.rstrip("/")
-            fs, base = arrow_filesystem(self.root)
+            if parsed.scheme not in MANIFEST_SCHEMES:
+                raise RegistryError(f"{root}: a registry cannot live on {parsed.scheme}:// (the manifest needs a "
+                                    f"folder or one of {', '.join(s + '://' for s in MANIFEST_SCHEMES)})")
+            try:
+                fs, base = arrow_filesystem(self.root)
+            except (ImportError, OSError, ValueError) as e:
+                raise RegistryError(f"{root}: cannot open the registry's store ({e})") from None
             self.blobs = ArrowBlobStore(fs, f"{base.rstrip('/')}/blobs")
             table_uri = f"{self.root}/manifests"
         self.manifest = ManifestTable(table_uri, storage_options, auto_compact_files=self.config.auto_compact_files)
