@@ -9,7 +9,8 @@ import typer
 
 
 def view_command(
-    scene: Optional[str] = typer.Argument(None, help="Scene id (SCENE[@V]) or bundle folder; none: the registry page."),
+    scene: Optional[str] = typer.Argument(None, help="Scene id (SCENE or SCENE@VERSION) or bundle folder; "
+                                                     "none: the registry page."),
     registry: Optional[str] = typer.Option(None, "--registry",
                                            help="Registry root (default $VID2SIM_REGISTRY or ./vid2sim-registry)."),
     episode: Optional[Path] = typer.Option(None, "--episode",
