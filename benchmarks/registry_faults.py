@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
+import subprocess
 import sys
 import tempfile
 import threading
@@ -23,7 +25,8 @@ import time
 from pathlib import Path
 from typing import Callable
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+TESTS = Path(__file__).resolve().parent.parent / "tests"
+sys.path.insert(0, str(TESTS))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 LOG = Path("manifests") / "_delta_log"
@@ -212,6 +215,144 @@ def case_nan_splats(root: Path, ctx: dict) -> str:
     return "add: exit %d `%s`" % cli("add", str(b), "-r", str(root))
 
 
+# ----------------------------------------------------------------------------- second round
+ADD_LOOP = """
+import sys
+from vid2sim.registry.store import Registry
+reg = Registry(sys.argv[1])
+for b in sys.argv[2:]:
+    print("added", reg.add(b).ref, flush=True)
+"""
+
+GC_LOOP = """
+import os, sys
+from typer.testing import CliRunner
+from vid2sim.cli.app import app
+runs = 0
+while True:
+    last = os.path.exists(sys.argv[2])
+    r = CliRunner().invoke(app, ["registry", "gc", "-r", sys.argv[1], "--grace-seconds", "0"])
+    assert r.exit_code == 0, r.output
+    runs += 1
+    if last:
+        break
+print(runs, flush=True)
+"""
+
+
+def _spawn(script: str, *args: str) -> subprocess.Popen:
+    path = os.pathsep.join([str(TESTS), str(TESTS.parent), os.environ.get("PYTHONPATH", "")])
+    env = {**os.environ, "PYTHONPATH": path}
+    return subprocess.Popen([sys.executable, "-c", script, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+
+
+def case_gc_races_adds(root: Path, ctx: dict) -> str:
+    """`gc --grace-seconds 0` in a loop (a real process) beside 3 processes adding 10 scenes each."""
+    from registry_fixtures import make_bundle
+
+    from vid2sim.registry import Registry
+
+    work = root.parent / f"{root.name}-race"
+    jobs = [[str(make_bundle(work / f"w{w}-{i}", f"race-{w}-{i}", seed=70_000 + 10 * w + i, n_splats=2000))
+             for i in range(10)] for w in range(3)]
+    stop = work / "stop"
+    gc_proc = _spawn(GC_LOOP, str(root), str(stop))
+    adders = [_spawn(ADD_LOOP, str(root), *job) for job in jobs]
+    outs = [p.communicate(timeout=600) for p in adders]
+    stop.touch()
+    gc_out, gc_err = gc_proc.communicate(timeout=600)
+    added = sum(out.count("added") for out, _ in outs)
+    reg = Registry(root)
+    lost = [r.ref for r in reg.list() if r.scene_id.startswith("race-")
+            and not all(reg.blobs.intact(a.sha256, a.size) for a in r.artifacts)]
+    v_code, v_line = cli("verify", "-r", str(root))
+    return (f"{added}/30 adds committed, gc ran {gc_out.strip() or gc_err.strip()[-80:]} times, "
+            f"committed scenes with lost blobs: {len(lost)}; verify: exit {v_code} `{v_line}`")
+
+
+def case_bad_grace(root: Path, ctx: dict) -> str:
+    return "gc --grace-seconds -1: exit %d `%s`" % cli("gc", "-r", str(root), "--grace-seconds", "-1")
+
+
+def case_time_travel_gap(root: Path, ctx: dict) -> str:
+    latest = ctx["n"]
+    log_file(root, ctx["n"] // 2).write_bytes(b"")
+    code, line = cli("list", "-r", str(root), "--as-of", str(latest))
+    s_code, s_line = cli("split", "-r", str(root), "--as-of", str(latest))
+    return f"list --as-of {latest}: exit {code} `{line}`; split --as-of: exit {s_code}"
+
+
+def case_checkout_tampered(root: Path, ctx: dict) -> str:
+    dest = root.parent / f"{root.name}-co"
+    cli("checkout", "scene-0005", "-r", str(root), "--dest", str(dest))
+    with open(dest / "splats.ply", "r+b") as f:
+        f.seek(-8, os.SEEK_END)
+        f.write(b"tampered")
+    (dest / "walkable.npz").unlink()
+    code, line = cli("checkout", "scene-0005", "-r", str(root), "--dest", str(dest))
+    from vid2sim.formats.bundle import validate_bundle
+
+    validate_bundle(dest)
+    return f"re-checkout: exit {code}; splats.ply and walkable.npz rewritten, bundle validates"
+
+
+def case_not_a_registry(root: Path, ctx: dict) -> str:
+    code, line = cli("list", "-r", str(root / "manifests"))
+    v_code, _ = cli("verify", "-r", str(root / "blobs"))
+    return f"list -r manifests/: exit {code} `{line}`; verify -r blobs/: exit {v_code}"
+
+
+def case_tag_typo(root: Path, ctx: dict) -> str:
+    typo = root.parent / f"{root.name}-typo"
+    code, line = cli("tag", "scene-0001", "city", "-r", str(typo))
+    return f"tag: exit {code} `{line}`; created: {typo.exists()}"
+
+
+def case_secret_url(root: Path, ctx: dict) -> str:
+    b = root.parent / f"{root.name}-secret"
+    shutil.copytree(ctx["bundles"] / "b0002", b)
+    scene = json.loads((b / "scene.json").read_text())
+    scene["source"]["uri"] = "https://videos.example/walk.mp4?client_secret=s3cr3t&sig=abc#access_token=t0k"
+    (b / "scene.json").write_text(json.dumps(scene))
+    code, line = cli("add", str(b), "-r", str(root))
+    return f"add: exit {code} `{line}`; secret printed: {'s3cr3t' in line or 't0k' in line}"
+
+
+def case_walkable_bomb(root: Path, ctx: dict) -> str:
+    import resource
+
+    from bomb_files import write_walkable_bomb
+
+    b = root.parent / f"{root.name}-bomb"
+    shutil.copytree(ctx["bundles"] / "b0003", b)
+    write_walkable_bomb(b / "walkable.npz", 20_000, 20_000)  # 400M cells in ~400 KB
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    code, line = cli("add", str(b), "-r", str(root))
+    grew = (resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before) / 1024
+    size_kb = (b / "walkable.npz").stat().st_size // 1024
+    return f"add ({size_kb} KB npz): exit {code} `{line}`; peak memory +{grew:.0f} MB"
+
+
+def case_paths(*args: str) -> Callable[[Path, dict], str]:
+    def run(root: Path, ctx: dict) -> str:
+        blocker = root.parent / f"{root.name}-file"
+        blocker.write_text("x")
+        argv = [a.replace("ROOT", str(root)).replace("FILE", str(blocker)) for a in args]
+        return "exit %d `%s`" % cli(*argv)
+    return run
+
+
+def case_ill_typed_scene_json(root: Path, ctx: dict) -> str:
+    b = root.parent / f"{root.name}-typed"
+    shutil.copytree(ctx["bundles"] / "b0004", b)
+    scene = json.loads((b / "scene.json").read_text())
+    scene["metrics"] = {"psnr": "high"}
+    scene["tags"] = "city"
+    (b / "scene.json").write_text(json.dumps(scene))
+    return "add: exit %d `%s`" % cli("add", str(b), "-r", str(root))
+
+
 CASES: dict[str, Callable[[Path, dict], str]] = {
     "manifests/_delta_log deleted": case_log_deleted,
     "manifests/ deleted": case_manifests_deleted,
@@ -232,6 +373,21 @@ CASES: dict[str, Callable[[Path, dict], str]] = {
     "mistyped --registry": case_typo_root,
     "--registry is a file": case_root_is_file,
     "NaN opacity in splats.ply": case_nan_splats,
+    "gc --grace-seconds 0 racing 30 adds (real processes)": case_gc_races_adds,
+    "gc --grace-seconds -1": case_bad_grace,
+    "time travel past an emptied log entry": case_time_travel_gap,
+    "checkout: tampered splats.ply, deleted walkable.npz": case_checkout_tampered,
+    "--registry at manifests/ or blobs/": case_not_a_registry,
+    "tag on a mistyped --registry": case_tag_typo,
+    "secrets in scene.json source.uri": case_secret_url,
+    "walkable.npz declaring 400M cells": case_walkable_bomb,
+    "query 2 GB of rows --memory 64MB": case_query("select repeat('x', 100000) as s from range(20000)",
+                                                   "--memory", "64MB", "--max-rows", "100000"),
+    "query --memory 12XB": case_query("select 1", "--memory", "12XB"),
+    "compact on a mistyped path": case_paths("compact", "-r", "ROOT-nowhere"),
+    "checkout --dest below a file": case_paths("checkout", "scene-0001", "-r", "ROOT", "--dest", "FILE/co"),
+    "memory:// registry root": case_paths("list", "-r", "memory://vid2sim"),
+    "ill-typed scene.json fields": case_ill_typed_scene_json,
 }
 
 
