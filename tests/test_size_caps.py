@@ -67,3 +67,20 @@ def test_odd_memory_values_are_named(root, memory):
         QueryLimits(memory=memory)
     r = CliRunner().invoke(app, ["registry", "query", "select 1", "-r", root, "--memory", memory])
     assert r.exit_code == 2 and "memory limit" in r.stderr and "Traceback" not in r.output
+
+
+def test_cameras_table_over_the_row_cap_is_refused_before_reading(tmp_path):
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+    from registry_fixtures import cameras_table
+
+    from vid2sim.formats.cameras import MAX_CAMERA_ROWS, load_cameras
+
+    bundle = make_bundle(tmp_path / "b", "many-frames")
+    rows = cameras_table(16)
+    pq.write_table(pa.concat_tables([rows] * (MAX_CAMERA_ROWS // 16 + 1)), bundle / "cameras.parquet",
+                   compression="zstd")
+    with pytest.raises(BundleTooLarge, match=r"cameras.parquet: declares 1,000,016 rows, over the cap"):
+        load_cameras(bundle / "cameras.parquet")
+    r = CliRunner().invoke(app, ["registry", "add", str(bundle), "-r", str(tmp_path / "reg")])
+    assert r.exit_code == 2 and "over the cap of 1,000,000" in r.stderr

@@ -3,6 +3,8 @@
 Columns: index int32, image string (file name), timestamp float64 (s), width/height int32,
 fx fy cx cy float64 (pixels, pinhole), cam_to_world list<float64>[16] (row-major 4x4, OpenCV
 axes: x right, y down, z forward), split string ("train" | "test").
+The reader checks the footer before reading: more than MAX_CAMERA_ROWS rows, or more than
+MAX_CAMERA_BYTES of uncompressed data, is `BundleTooLarge`.
 """
 
 from __future__ import annotations
@@ -13,9 +15,11 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from vid2sim.formats.errors import BundleError
+from vid2sim.formats.errors import BundleError, BundleTooLarge
 
 CAMERAS_PARQUET = "cameras.parquet"
+MAX_CAMERA_ROWS = 1_000_000  # frames per scene (a 15 s clip at 10 fps has 150)
+MAX_CAMERA_BYTES = 1 << 30  # uncompressed bytes the footer declares (a row takes about 250)
 CAMERA_COLUMNS = ("index", "image", "timestamp", "width", "height", "fx", "fy", "cx", "cy",
                   "cam_to_world", "split")
 
@@ -30,10 +34,24 @@ def cameras_schema() -> pa.Schema:
     ])
 
 
+def check_declared_size(path: Path) -> None:
+    """BundleTooLarge when the parquet footer declares more rows or uncompressed bytes than the caps."""
+    try:
+        meta = pq.ParquetFile(path).metadata
+    except Exception as e:
+        raise BundleError(path, f"unreadable parquet ({type(e).__name__}: {e})") from None
+    size = sum(meta.row_group(i).total_byte_size for i in range(meta.num_row_groups))
+    if meta.num_rows > MAX_CAMERA_ROWS:
+        raise BundleTooLarge(path, f"declares {meta.num_rows:,} rows, over the cap of {MAX_CAMERA_ROWS:,}")
+    if size > MAX_CAMERA_BYTES:
+        raise BundleTooLarge(path, f"declares {size:,} uncompressed bytes, over the cap of {MAX_CAMERA_BYTES:,}")
+
+
 def load_cameras(path: Path) -> pa.Table:
     """cameras.parquet -> pyarrow.Table with exactly `cameras_schema()` columns and types."""
     if not Path(path).is_file():
         raise BundleError(path, "missing cameras table")
+    check_declared_size(path)
     try:
         table = pq.read_table(path)
     except Exception as e:
