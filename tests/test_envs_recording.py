@@ -93,3 +93,15 @@ def test_map_zooms_on_the_episode_of_a_long_street() -> None:
         assert p[0, 1] > p[1, 1]  # +y is up on the map
     span = lambda m: np.diff(m.px(ends)[:, 0])[0]  # noqa: E731
     assert span(zoom) > 1.5 * span(whole) and span(whole) > 100
+
+
+def test_a_trace_beside_each_mp4_has_one_step_per_frame(tmp_path) -> None:
+    from vid2sim.formats.episode_trace import read_trace, trace_path
+
+    env = RecordEpisode(GridNavEnv(max_steps=12), tmp_path, fps=5)
+    lengths = _run(env, 1, np.random.default_rng(0))
+    env.close()
+    trace = read_trace(trace_path(env.paths[0]))
+    assert trace.steps == lengths[0] + 1 == len(_frames(env.paths[0]))
+    assert trace.video == "episode-0.mp4" and trace.view_width_px == int(round(128 * PANEL_H / 72))
+    assert trace.xy[0] != trace.xy[-1] and len(trace.goal) == 2 and trace.fps == 5
