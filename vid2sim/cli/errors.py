@@ -73,7 +73,7 @@ def _param_hint(exc: click.ClickException) -> Optional[str]:
     return one_line(hint if isinstance(hint, str) else " / ".join(hint)) if hint else None
 
 
-def _click_reason(exc: click.ClickException, hint: Optional[str]) -> str:
+def _click_reason(exc: click.ClickException) -> str:
     if isinstance(exc, click.MissingParameter):
         return "missing (required)"
     if isinstance(exc, click.NoSuchOption):
@@ -88,8 +88,7 @@ def report_of(exc: BaseException) -> ErrorReport:
     """The input and reason a user error names."""
     name = type(exc).__name__
     if isinstance(exc, click.ClickException):
-        hint = _param_hint(exc)
-        return ErrorReport(name, hint, _click_reason(exc, hint))
+        return ErrorReport(name, _param_hint(exc), _click_reason(exc))
     if isinstance(exc, InputError):
         return ErrorReport(name, exc.input, one_line(exc.reason))
     reason = getattr(exc, "reason", None)
