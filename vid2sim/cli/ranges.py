@@ -6,7 +6,8 @@ A field's range comes from its name (the leaf of its dotted path), by the first 
   - positive: sizes, rates and lengths that must be > 0 (`fps`, `resolution_m`, `capture_height_m`, ...);
   - counts: iterations, batch sizes, envs, trials, widths, ... that must be >= 1;
   - everything else: >= 0.
-Some add an upper bound (`jpeg_quality` <= 100, `frames` <= 6, angles below 180 deg, ports).
+Some add an upper bound (`jpeg_quality` <= 100, `frames` <= 6, angles below 180 deg, ports, and
+image sizes that decide an allocation: `width` / `height` <= 8192).
 Every float must be finite. Items of a tuple / list field take the field's range; None is allowed
 where the type is Optional. `check_ranges(config)` raises `RangeError` naming the dotted path.
 """
@@ -66,7 +67,10 @@ COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_st
                     r"consistency_views|min_frames|min_ground_points|stuck_steps|eval_max_steps)$")
 UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "sh_degree": 3, "port": 65535,
          "vfov_deg": 179, "max_steer_deg": 89, "max_tilt_deg": 90, "ground_normal_deg": 90,
-         "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179}
+         "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
+         # sizes that decide an allocation (an image, a frame stack) are capped too
+         "width": 8192, "height": 8192, "max_side": 16384, "max_image_size": 16384, "analysis_width": 8192,
+         "max_width": 8192, "frame_stack": 64}
 
 
 def field_range(name: str) -> Range:
