@@ -13,7 +13,7 @@ from typing import Optional
 from vid2sim.registry import Registry
 from vid2sim.registry.errors import RegistryError, RegistryNotFound, SceneNotFound
 from vid2sim.registry.store import default_root, parse_ref
-from vid2sim.viewer.errors import UnknownScene
+from vid2sim.viewer.errors import UnknownScene, ViewerError
 
 
 def checkout_root() -> Path:
@@ -50,4 +50,7 @@ def resolve_bundle(target: str, registry: Optional[str] = None, checkouts: Optio
         raise UnknownScene(f"unknown scene {target!r}: not a folder and not in the registry at {reg.root} "
                            f"(scenes there: {known})") from None
     dest = Path(checkouts or checkout_root()) / f"{rec.ref}-{rec.content_hash[:12]}"
-    return reg.checkout(rec.scene_id, rec.version, dest=dest)
+    try:
+        return reg.checkout(rec.scene_id, rec.version, dest=dest)
+    except RegistryError as e:  # a damaged blob, an unwritable destination: named, not a traceback
+        raise ViewerError(f"{rec.ref}: cannot check the scene out ({e})") from None
