@@ -42,6 +42,7 @@ class Viewer:
             if self.scene is not None:
                 self.scene.remove()
             self.layers, self.scene = layers, show_scene(self.server, layers, hidden)
+            self.messages.clear()  # they speak of the scene shown
             if layers.missing:
                 msg = f"{layers.scene_id}: showing what is there; missing {missing_summary(layers)}"
                 self.messages.append(msg)
