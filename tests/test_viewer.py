@@ -167,3 +167,17 @@ def test_walkable_image_rows_follow_the_grid() -> None:
     grid[0, 2] = 1  # lowest y, largest x
     img = walkable_rgba(grid)
     assert img.shape == (4, 3, 4) and img[0, 2, 3] > 0 and img[:, :, 3].sum() == img[0, 2, 3]
+
+
+def test_viewer_on_a_bundle_missing_a_layer_shows_the_rest(bundle) -> None:
+    (bundle / "walkable.npz").unlink()
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    viewer = open_viewer(str(bundle), port=port)
+    try:
+        assert viewer.url.endswith(f":{port}")
+        assert sorted(viewer.scene.toggles) == ["camera path", "collision mesh", "grid (1 m cells)", "splats"]
+        assert len(viewer.messages) == 1 and "walkable.npz: missing walkable grid" in viewer.messages[0]
+    finally:
+        viewer.stop()
