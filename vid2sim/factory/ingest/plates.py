@@ -23,8 +23,8 @@ import numpy as np
 class PlateConfig:
     detector: str = "text_rows"  # text_rows | none
     min_char_px: int = 6  # smallest character height (a ~40 px wide European plate)
-    max_char_px: int = 80
-    min_chars: int = 4
+    max_char_px: int = 80  # largest character height (a plate filling a close-up frame)
+    min_chars: int = 4  # fewest characters in a row that counts as a plate
     max_gap: float = 1.2  # largest gap between neighbouring characters, in character heights
     max_aspect: float = 2.5  # widest component (width / height); > 1 admits glyphs that touch
     align: float = 0.2  # tops and bottoms of neighbours agree within this fraction of their height
