@@ -338,6 +338,39 @@ def _window(pix, pb, d0, last, hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop, la
     return nb, stop
 
 
+@njit(cache=True, inline="always")
+def clear_tile(pix, rdone, tw, th):
+    """Reset a tile's scratch: T = 1 and r g b z = 0 for its th rows; rdone marks the bit
+    columns right of the tile's width tw as stopped."""
+    for i in range(th * ROW):
+        p = U64(i)
+        pix[p] = F32(1.0)
+        pix[p + O1] = F32(0.0)
+        pix[p + O2] = F32(0.0)
+        pix[p + O3] = F32(0.0)
+        pix[p + O4] = F32(0.0)
+    for r in range(th):
+        rdone[r] = ~(ALL_BITS >> U64(64 - tw))
+
+
+@njit(cache=True, fastmath=True, inline="always")
+def finish_tile(pix, x0, y0, x1, y1, t_fill, color, alpha, depth):
+    """Write a blended tile's pixels to color [H, W, 3], alpha [H, W], depth [H, W]: a pixel
+    with T < t_fill is renormalised to alpha 1 (opaque)."""
+    for py in range(y0, y1):
+        rb = (py - y0) * ROW - x0
+        for px in range(x0, x1):
+            p = U64(rb + px)
+            Tp = pix[p]
+            opaque = Tp < t_fill
+            f = F32(1.0) / (F32(1.0) - Tp) if opaque else F32(1.0)
+            color[py, px, 0] = pix[p + O1] * f
+            color[py, px, 1] = pix[p + O2] * f
+            color[py, px, 2] = pix[p + O3] * f
+            depth[py, px] = pix[p + O4] * f
+            alpha[py, px] = F32(1.0) if opaque else F32(1.0) - Tp
+
+
 @njit(cache=True, fastmath=True)
 def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pix, rdone, color,
                    alpha, depth):
@@ -352,15 +385,7 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
     took weight, the padding lanes right of the tile included)."""
     tw = x1 - x0
     th = y1 - y0
-    for i in range(th * ROW):
-        p = U64(i)
-        pix[p] = F32(1.0)
-        pix[p + O1] = F32(0.0)
-        pix[p + O2] = F32(0.0)
-        pix[p + O3] = F32(0.0)
-        pix[p + O4] = F32(0.0)
-    for r in range(th):
-        rdone[r] = ~(ALL_BITS >> U64(64 - tw))
+    clear_tile(pix, rdone, tw, th)
     n_live = tw * th
     blends = 0
     for k in range(offsets[t0], offsets[t0 + 1]):
@@ -395,18 +420,7 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
                 n_live -= np.int64(popc64(new))
         if n_live <= 0:
             break
-    for py in range(y0, y1):
-        rb = (py - y0) * ROW - x0
-        for px in range(x0, x1):
-            p = U64(rb + px)
-            Tp = pix[p]
-            opaque = Tp < t_fill
-            f = F32(1.0) / (F32(1.0) - Tp) if opaque else F32(1.0)
-            color[py, px, 0] = pix[p + O1] * f
-            color[py, px, 1] = pix[p + O2] * f
-            color[py, px, 2] = pix[p + O3] * f
-            depth[py, px] = pix[p + O4] * f
-            alpha[py, px] = F32(1.0) if opaque else F32(1.0) - Tp
+    finish_tile(pix, x0, y0, x1, y1, t_fill, color, alpha, depth)
     return blends
 
 

@@ -22,8 +22,8 @@ from numba import njit
 from ._bits import popc64
 from .fastbatch import TILE_SHIFT, T_STOP, FastBatch
 from .fastframe import (A_MAX, ALL_BITS, LANES, NPIX, NQ, O1, O2, O3, O4, Q_A, Q_B, Q_BL, Q_C,
-                        Q_CUT, Q_G, Q_O, Q_R, Q_X, Q_Y, Q_Z, ROW, cull_project,
-                        depth_order, exp_neg, sort_bin)
+                        Q_CUT, Q_G, Q_O, Q_R, Q_X, Q_Y, Q_Z, ROW, clear_tile, cull_project,
+                        depth_order, exp_neg, finish_tile, sort_bin)
 
 U64 = np.uint64
 CHECK_EVERY = 32  # splats between two scans of the tile for stopped pixels
@@ -101,15 +101,7 @@ def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
     pixels found by a scan of the tile every CHECK_EVERY splats instead of per blended row."""
     tw = x1 - x0
     th = y1 - y0
-    for i in range(th * ROW):
-        p = U64(i)
-        pix[p] = F32(1.0)
-        pix[p + O1] = F32(0.0)
-        pix[p + O2] = F32(0.0)
-        pix[p + O3] = F32(0.0)
-        pix[p + O4] = F32(0.0)
-    for r in range(th):
-        rdone[r] = ~(ALL_BITS >> U64(64 - tw))
+    clear_tile(pix, rdone, tw, th)
     since = 0
     for k in range(offsets[t0], offsets[t0 + 1]):
         v = inst[k]
@@ -142,18 +134,7 @@ def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
             since = 0
             if _scan_stopped(pix, tw, th, t_stop, rdone) <= 0:
                 break
-    for py in range(y0, y1):
-        rb = (py - y0) * ROW - x0
-        for px in range(x0, x1):
-            p = U64(rb + px)
-            Tp = pix[p]
-            opaque = Tp < t_fill
-            f = F32(1.0) / (F32(1.0) - Tp) if opaque else F32(1.0)
-            color[py, px, 0] = pix[p + O1] * f
-            color[py, px, 1] = pix[p + O2] * f
-            color[py, px, 2] = pix[p + O3] * f
-            depth[py, px] = pix[p + O4] * f
-            alpha[py, px] = F32(1.0) if opaque else F32(1.0) - Tp
+    finish_tile(pix, x0, y0, x1, y1, t_fill, color, alpha, depth)
 
 
 @njit(cache=True)
