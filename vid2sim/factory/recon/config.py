@@ -179,6 +179,8 @@ def quick() -> ReconConfig:
     40.3k, 26.81 dB / 0.842 (static 28.94 dB). The held-out L1 still fell 0.7-1.8 % per 100
     iterations from 1500 to 2000 (the means' learning rate decays over the whole run), so the
     stop did not fire there; the same schedule cut to 1600 iterations (150 s) lost 0.86 dB.
+    Demo street: recon CPU 437 -> 319 s, PSNR 31.86 -> 31.28 dB (over the 0.3 dB budget), walkable
+    IoU 0.834 -> 0.877 (docs/results.md), so it is opt-in.
     `benchmarks/pipeline.py speed` compares it with `fast` stage by stage and on the walked
     corridor and, on the demo street, walkable IoU against ground truth.
     """
