@@ -184,7 +184,7 @@ def test_resume_refuses_other_options_and_missing_runs(distilled, tmp_path):
     before = (run / "config.json").read_text()
     result = CliRunner().invoke(app, ["train", "--registry", "x", "--run", str(run), "--resume", "--envs", "3",
                                       "--set", "seed=2"])
-    assert result.exit_code == 2 and "--envs, --set refused with --resume" in result.output
+    assert result.exit_code == 2 and "error: --envs, --set: refused with --resume" in result.output
     assert (run / "config.json").read_text() == before
     missing = tmp_path / "no-run"
     result = CliRunner().invoke(app, ["train", "--registry", "x", "--run", str(missing), "--resume"])
