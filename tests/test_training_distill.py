@@ -139,6 +139,24 @@ def test_dataset_cap_drops_the_oldest_rounds():
     assert len(arrays.actions) == 25 and arrays.frames[0, 0, 0, 0, 0] == 1 and arrays.frames[-1, 0, 0, 0, 0] == 3
 
 
+def test_dataset_even_eviction_keeps_every_round_in_proportion():
+    def batch(n, value):
+        return Batch(np.full((n, 1, 1, 2, 2), value, np.uint8), np.zeros((n, 6, 2), np.float32),
+                     np.arange(n, dtype=np.float32)[:, None].repeat(2, 1))
+    data = Dataset(max_samples=40, eviction="even")
+    for k in range(8):
+        data.add(batch(20, k))
+    arrays = data.arrays()
+    rounds = arrays.frames[:, 0, 0, 0, 0]
+    counts = np.bincount(rounds, minlength=8)
+    assert len(data) <= 40 and counts.min() >= 3  # every round, the teacher's first ones too, keeps a share
+    assert counts.max() - counts.min() <= 3  # ... of about the same size (rounds were the same size)
+    first = arrays.actions[rounds == 0, 0]
+    assert first.min() == 0 and first.max() == 19  # spread over the round, not its head or tail
+    with pytest.raises(DistillError, match="bad_eviction"):
+        Dataset(10, eviction="random")
+
+
 def test_scene_groups_use_every_scene():
     assert scene_groups(["a", "b", "c", "d", "e"], 2) == [["a", "c", "e"], ["b", "d"]]
     assert scene_groups(["a"], 3) == [["a"], ["a"], ["a"]]

@@ -51,7 +51,8 @@ class DistillConfig:
     batch_size: int = 128  # samples per Adam step
     learning_rate: float = 3e-4  # Adam step size
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
-    max_samples: int = 150_000  # dataset cap in labelled states (the oldest rounds are dropped first)
+    max_samples: int = 150_000  # dataset cap in labelled states
+    eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
     drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)
     train_max_steps: int = 500  # episode limit while collecting (truncation); evaluation keeps the env's 3000
     threads: int = 0  # torch threads of the learner (0: torch's default)

@@ -67,18 +67,39 @@ class Batch:
             return cls(z["frames"], z["vectors"], z["actions"])
 
 
-class Dataset:
-    """The aggregated DAgger dataset, capped at `max_samples` (the oldest rows go first)."""
+EVICTIONS = ("oldest", "even")
 
-    def __init__(self, max_samples: int) -> None:
-        self.max_samples = max_samples
+
+class Dataset:
+    """The aggregated DAgger dataset, capped at `max_samples` labelled states.
+
+    Over the cap, `eviction="oldest"` drops whole rounds, oldest first (the teacher-driven early
+    rounds go first); `"even"` thins every round to the same fraction, evenly spaced in time, so
+    each round keeps a share proportional to its size (what a reservoir keeps, without chance)."""
+
+    def __init__(self, max_samples: int, eviction: str = "oldest") -> None:
+        if eviction not in EVICTIONS:
+            raise DistillError(f"bad_eviction: eviction must be one of {EVICTIONS}, got {eviction!r}")
+        self.max_samples, self.eviction = max_samples, eviction
         self.parts: list[Batch] = []
+        self.seen: list[int] = []  # rows each part had when added
 
     def add(self, batch: Batch) -> None:
         if len(batch.actions):
             self.parts.append(batch)
+            self.seen.append(len(batch.actions))
+        if self.eviction == "even":
+            self._thin_evenly()
+            return
         while len(self) - len(self.parts[0].actions) >= self.max_samples and len(self.parts) > 1:
             self.parts.pop(0)
+            self.seen.pop(0)
+
+    def _thin_evenly(self) -> None:
+        if len(self) <= self.max_samples:
+            return
+        keep = apportion(self.max_samples, self.seen)
+        self.parts = [thin(p, k) for p, k in zip(self.parts, keep)]
 
     def __len__(self) -> int:
         return sum(len(p.actions) for p in self.parts)
@@ -87,6 +108,23 @@ class Dataset:
         keep = min(len(self), self.max_samples)
         cat = [np.concatenate([getattr(p, k) for p in self.parts])[-keep:] for k in ("frames", "vectors", "actions")]
         return Batch(*cat)
+
+
+def apportion(total: int, sizes: Sequence[int]) -> list[int]:
+    """`total` split in proportion to `sizes` (largest remainders round up; sums to `total`)."""
+    exact = np.asarray(sizes, np.float64) * total / max(sum(sizes), 1)
+    share = np.floor(exact).astype(np.int64)
+    share[np.argsort(share - exact, kind="stable")[: total - int(share.sum())]] += 1
+    return share.tolist()
+
+
+def thin(batch: Batch, keep: int) -> Batch:
+    """`keep` rows of `batch`, evenly spaced over it."""
+    n = len(batch.actions)
+    if keep >= n:
+        return batch
+    idx = np.linspace(0, n - 1, keep).round().astype(np.int64) if keep > 0 else np.zeros(0, np.int64)
+    return Batch(batch.frames[idx], batch.vectors[idx], batch.actions[idx])
 
 
 # ------------------------------------------------------------------ set-up
@@ -246,7 +284,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
                                                       "vector_shape": list(student.vector_shape)}, indent=2))
         optimizer = torch.optim.Adam(student.parameters(), lr=d.learning_rate)
         rng = np.random.default_rng(config.seed)
-        dataset, history, start, done = Dataset(d.max_samples), [], 0, 0
+        dataset, history, start, done = Dataset(d.max_samples, d.eviction), [], 0, 0
         if resume:
             ckpt = load_checkpoint(run)
             student.load_state_dict(ckpt["student"]["state_dict"])
