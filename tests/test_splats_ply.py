@@ -7,8 +7,8 @@ import pytest
 import torch
 from plyfile import PlyData, PlyElement
 
+from vid2sim.formats.errors import BundleError
 from vid2sim.splats import GaussianModel, read_ply, write_ply
-from vid2sim.splats.ply import PlyFormatError
 
 
 def random_model(n: int, degree: int) -> GaussianModel:
@@ -82,16 +82,16 @@ def test_reads_hand_written_standard_layout(tmp_path, degree, normals):
 def test_missing_property_names_file_and_property(tmp_path):
     path = tmp_path / "broken.ply"
     _hand_written(path, 5, 1, drop="scale_1")
-    with pytest.raises(PlyFormatError, match=r"broken\.ply.*scale_1"):
+    with pytest.raises(BundleError, match=r"broken\.ply.*scale_1"):
         read_ply(path)
 
 
 def test_bad_sh_count_and_not_a_ply(tmp_path):
     path = tmp_path / "odd.ply"
     _hand_written(path, 3, 1, drop="f_rest_8")  # 8 rest coefficients: not 3 * (K - 1)
-    with pytest.raises(PlyFormatError, match="odd.ply"):
+    with pytest.raises(BundleError, match="odd.ply"):
         read_ply(path)
     junk = tmp_path / "junk.ply"
     junk.write_text("hello")
-    with pytest.raises(PlyFormatError, match="junk.ply"):
+    with pytest.raises(BundleError, match="junk.ply"):
         read_ply(junk)

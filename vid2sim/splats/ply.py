@@ -1,27 +1,23 @@
 """Read and write the standard 3DGS PLY (binary little-endian, one `vertex` element).
 
 The property list and its meaning are the bundle contract in `vid2sim.formats.splat_ply`
-(normals written as zeros, optional on read; the quaternion need not be normalised).
+(normals written as zeros, optional on read; the quaternion need not be normalised). `read_ply`
+checks the header first (`read_splat_header`: layout, the MAX_SPLATS cap, the body size), so a bad
+file is a `BundleError` (`BundleTooLarge` over the cap) before any body byte is read.
 """
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 import torch
 from plyfile import PlyData, PlyElement
 
-from vid2sim.formats.splat_ply import REQUIRED_PROPERTIES, property_names
+from vid2sim.formats.errors import BundleError
+from vid2sim.formats.splat_ply import property_names, read_splat_header
 
 from .model import GaussianModel
-from .sh import sh_degree_from_coeffs
-
-
-
-class PlyFormatError(ValueError):
-    """A PLY that is not a 3DGS Gaussian file."""
 
 
 def write_ply(model: GaussianModel, path: str | Path) -> Path:
@@ -46,30 +42,15 @@ def write_ply(model: GaussianModel, path: str | Path) -> Path:
 
 
 def read_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> GaussianModel:
-    """Read a 3DGS PLY of any SH degree 0..3 (normals optional)."""
+    """Read a 3DGS PLY of any SH degree 0..3 (normals optional); its header is checked first."""
     path = Path(path)
+    header = read_splat_header(path)
     try:
-        ply = PlyData.read(str(path))
+        v = PlyData.read(str(path))["vertex"].data
     except Exception as exc:  # plyfile raises several types on malformed input
-        raise PlyFormatError(f"{path}: not a readable PLY file ({exc})") from exc
-    if "vertex" not in [e.name for e in ply.elements]:
-        raise PlyFormatError(f"{path}: no 'vertex' element, so not a Gaussian-splat PLY")
-    v = ply["vertex"].data
-    names = set(v.dtype.names or ())
-    missing = [p for p in REQUIRED_PROPERTIES if p not in names]
-    if missing:
-        raise PlyFormatError(f"{path}: missing 3DGS properties {missing}")
-    rest_names = sorted((p for p in names if re.fullmatch(r"f_rest_\d+", p)),
-                        key=lambda p: int(p.split("_")[-1]))
-    if [int(p.split("_")[-1]) for p in rest_names] != list(range(len(rest_names))):
-        raise PlyFormatError(f"{path}: f_rest_* properties are not numbered 0..n-1")
-    if len(rest_names) % 3:
-        raise PlyFormatError(f"{path}: {len(rest_names)} f_rest_* properties is not a multiple of 3")
+        raise BundleError(path, f"unreadable PLY ({type(exc).__name__}: {exc})") from exc
+    rest_names = [f"f_rest_{i}" for i in range(sum(p.startswith("f_rest_") for p in header.properties))]
     k = len(rest_names) // 3 + 1
-    try:
-        sh_degree_from_coeffs(k)
-    except ValueError as exc:
-        raise PlyFormatError(f"{path}: {exc}") from exc
 
     def cols(props: list[str]) -> np.ndarray:
         return np.stack([np.asarray(v[p], dtype=np.float64) for p in props], axis=1) \
