@@ -26,7 +26,9 @@ from pathlib import Path
 from typing import Callable, Optional, Union
 
 import pyarrow as pa
+import pyarrow.fs as pafs
 
+from vid2sim.registry.blobs import arrow_filesystem
 from vid2sim.registry.errors import HistoryLost, RegistryNotFound
 
 ARTIFACT_TYPE = pa.struct([("name", pa.string()), ("sha256", pa.string()), ("size", pa.int64())])
@@ -129,6 +131,7 @@ class ManifestTable:
         self._cache: tuple[int, pa.Table] | None = None
         self._checked = -1  # log files 0.._checked were seen present and non-empty
         self.local = "://" not in uri
+        self._fs: Optional[tuple[pafs.FileSystem, str]] = None  # the store's filesystem (not local)
 
     # -- table handle
     def _open(self, create: bool = True):
@@ -150,7 +153,10 @@ class ManifestTable:
         try:
             return fn()
         except (DeltaError, OSError) as e:
-            found = self.log_problems() if self.local else []  # name the gap rather than delta-rs's words
+            try:  # name the gap rather than delta-rs's words
+                found = self.log_problems()
+            except OSError:  # the store itself does not answer: delta-rs's words it is
+                found = []
             first = str(e).splitlines()[0][:300] if str(e) else type(e).__name__
             raise HistoryLost(f"{self.uri}: {found[0] if found else f'manifest log unreadable ({first})'}; "
                               f"run `vid2sim registry verify`") from None
@@ -195,25 +201,40 @@ class ManifestTable:
     def log_problems(self, upto: Optional[int] = None, start: int = 0, deep: bool = False) -> list[str]:
         """Gaps, empty or (with `deep`) unparsable commit files in the log, and missing data files.
 
-        Local tables only (an object store's log is trusted). `upto` defaults to the newest file.
+        Local tables and object stores alike (on a store: one listing of the log, plus, with `deep`,
+        a read of each commit file and a lookup of each data file). `upto` defaults to the newest file.
         """
-        if not self.local:
-            return []
-        log_dir = Path(self.uri) / LOG_DIR
-        found = {int(m.group(1)): p for p in (log_dir.iterdir() if log_dir.is_dir() else [])
-                 if (m := COMMIT_RE.fullmatch(p.name))}
+        fs, log_dir = self._log_fs()
+        listing = fs.get_file_info(pafs.FileSelector(log_dir, allow_not_found=True))
+        found = {int(m.group(1)): info for info in listing
+                 if info.type == pafs.FileType.File and (m := COMMIT_RE.fullmatch(info.base_name))}
         last = max(found, default=-1) if upto is None else upto
         problems = [f"manifest log version {v} is missing (history has a gap)"
                     for v in range(start, last + 1) if v not in found]
         for v in range(start, last + 1):
-            p = found.get(v)
-            if p is not None and (p.stat().st_size == 0 or (deep and not _parses(p))):
-                kind = "empty (0 bytes)" if p.stat().st_size == 0 else "not valid JSON lines"
+            info = found.get(v)
+            if info is not None and (info.size == 0 or (deep and not _parses(fs, info.path))):
+                kind = "empty (0 bytes)" if info.size == 0 else "not valid JSON lines"
                 problems.append(f"manifest log version {v} is {kind}: the commit it held is lost")
-        if not problems and self._dt is not None:
+        if not problems and self._dt is not None and (self.local or deep):
             problems += [f"manifest data file {u} is missing" for u in self._dt.file_uris()
-                         if not Path(u.removeprefix("file://")).is_file()]
+                         if not self._data_file_exists(fs, u)]
         return problems
+
+    def _log_fs(self) -> tuple[pafs.FileSystem, str]:
+        """(filesystem, path of the `_delta_log` folder): the local disk, or the table's store."""
+        if self.local:
+            return pafs.LocalFileSystem(), str(Path(self.uri).resolve() / LOG_DIR)
+        if self._fs is None:
+            self._fs = arrow_filesystem(self.uri)
+        fs, base = self._fs
+        return fs, f"{base.rstrip('/')}/{LOG_DIR}"
+
+    def _data_file_exists(self, fs: pafs.FileSystem, uri: str) -> bool:
+        if self.local:
+            return Path(uri.removeprefix("file://")).is_file()
+        path = uri.split("://", 1)[1] if "://" in uri else uri
+        return fs.get_file_info(path).type == pafs.FileType.File
 
     # -- reads
     def read(self, as_of: AsOf = None, check: bool = True) -> tuple[int, pa.Table]:
@@ -368,9 +389,11 @@ class ManifestTable:
                                    enforce_retention_duration=False, full=full)
 
 
-def _parses(path: Path) -> bool:
+def _parses(fs: pafs.FileSystem, path: str) -> bool:
     try:
-        return all(json.loads(line) is not None for line in path.read_text().splitlines() if line.strip())
+        with fs.open_input_stream(path) as f:
+            text = f.read().decode()
+        return all(json.loads(line) is not None for line in text.splitlines() if line.strip())
     except (ValueError, UnicodeDecodeError):
         return False
 
