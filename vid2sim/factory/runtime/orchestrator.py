@@ -7,10 +7,15 @@ independently and a clip that fails stops alone. A stage takes the clip's state
 cached (see `stage_cache.py`), so a re-run resumes after the last finished stage.
 Ray retries a task whose worker died (`max_retries`); a StageError is a verdict about
 the input and is not retried.
+
+Besides its wall seconds, each stage reports `stats` (`ClipResult.stats[stage]`): the node it
+ran on, the worker process's CPU seconds and the object-store transfers it made
+(`staging.transfer_totals`, seconds / bytes / folders moved down, up and as a fetched source).
 """
 
 from __future__ import annotations
 
+import resource
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -19,6 +24,7 @@ from typing import Any, Callable, Optional, Sequence
 import ray
 
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.factory.runtime.staging import transfer_totals
 
 
 @dataclass(frozen=True)
@@ -46,6 +52,7 @@ class ClipState:
     detail: str = ""
     seconds: dict = field(default_factory=dict)
     started: float = 0.0
+    stats: dict = field(default_factory=dict)  # stage -> node, CPU seconds, transfers (see module doc)
 
 
 @dataclass(frozen=True)
@@ -57,20 +64,42 @@ class ClipResult:
     detail: str
     work: Any  # the clip's last state (None for a clip that never started)
     seconds: dict
+    stats: dict = field(default_factory=dict)  # stage -> node, CPU seconds, transfers (see module doc)
+
+
+def _cpu_seconds() -> float:
+    """CPU seconds of this process and its reaped children (user + system)."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _node_id() -> str:
+    """The Ray node this process runs on ("" outside Ray: asking would start a runtime)."""
+    if not ray.is_initialized():
+        return ""
+    try:
+        return ray.get_runtime_context().get_node_id()
+    except Exception:
+        return ""
 
 
 def _run_stage(fn: Callable[[Any], Any], stage_name: str, work: Any) -> dict:
     """Executed in a Ray worker: run the stage, turn errors into a verdict record."""
-    t0 = time.perf_counter()
+    t0, cpu0, moved0 = time.perf_counter(), _cpu_seconds(), transfer_totals()
+
+    def done(**rec: Any) -> dict:
+        moved = transfer_totals()
+        stats = {"node": _node_id(), "cpu_s": _cpu_seconds() - cpu0,
+                 **{k: v - moved0.get(k, 0) for k, v in moved.items()}}
+        return {**rec, "seconds": time.perf_counter() - t0, "stats": stats}
+
     try:
-        return {"ok": True, "work": fn(work), "seconds": time.perf_counter() - t0}
+        return done(ok=True, work=fn(work))
     except StageError as e:
-        return {"ok": False, "reason": e.reason, "detail": e.detail or str(e),
-                "seconds": time.perf_counter() - t0}
+        return done(ok=False, reason=e.reason, detail=e.detail or str(e))
     except Exception as e:  # a bug or an unexpected input: report, do not crash the batch
         tb = traceback.format_exc(limit=6)
-        return {"ok": False, "reason": f"error:{type(e).__name__}", "detail": f"{e}\n{tb}",
-                "seconds": time.perf_counter() - t0}
+        return done(ok=False, reason=f"error:{type(e).__name__}", detail=f"{e}\n{tb}")
 
 
 def init_ray(address: Optional[str] = None, num_cpus: Optional[int] = None, attempts: int = 3,
@@ -150,6 +179,7 @@ def run_clips(
             fail(state, f"ray:{type(e).__name__}", str(e)[:2000])
             continue
         state.seconds[state.stage] = out["seconds"]
+        state.stats[state.stage] = out.get("stats", {})
         if not out["ok"]:
             fail(state, out["reason"], out["detail"])
             continue
@@ -168,4 +198,4 @@ def run_clips(
         except StageError as e:
             fail(state, e.reason, e.detail or str(e))
     return [ClipResult(s.clip_id, s.status == "done", s.stage if s.status == "failed" else "",
-                       s.reason, s.detail, s.work, s.seconds) for s in states.values()]
+                       s.reason, s.detail, s.work, s.seconds, s.stats) for s in states.values()]
