@@ -1,21 +1,32 @@
 """Every numeric field of every config the command line runs with (`vid2sim config show`'s
 sections, walked from the configs themselves) refuses a value outside its range by name, and its
-default lies inside."""
+default lies inside. The same holds for the Python API: every `*Config` dataclass of the training,
+env and registry packages (StudyConfig, DistillConfig, StudentConfig, EvalConfig, ...) checks its
+fields whenever it is built or loaded."""
 
 from __future__ import annotations
 
+import dataclasses
+import importlib
+import inspect
 import json
 import math
+import pkgutil
 import re
+import types
+import typing
 from typing import Any
 
 import pytest
 from typer.testing import CliRunner
 
 from vid2sim.cli.app import app
-from vid2sim.cli.ranges import RangeError, field_range
 from vid2sim.cli.settings import (SECTIONS, _placeholder, apply_eval_overrides, apply_overrides, describe_section,
-                                  section_config)
+                                  section_config, type_hints)
+from vid2sim.ranges import CHECKED, RangeError, check_ranges, field_range
+from vid2sim.training.config import DistillConfig, TrainConfig
+from vid2sim.training.evaluate import EvalConfig
+from vid2sim.training.study import StudyConfig, StudyError, run_study
 
 
 def base(section: str) -> Any:
@@ -90,3 +101,125 @@ def test_cli_reports_a_field_out_of_range(sets, named):
     r = CliRunner().invoke(app, args)
     assert r.exit_code == 2 and r.stderr.startswith(f"error: --set {sets[0]}: {named}: ")
     assert json.loads(r.stdout)["error"]["type"] == "RangeError"
+
+
+# ------------------------------------------------------------------ the Python API: configs check themselves
+
+CONFIG_PACKAGES = ("vid2sim.training", "vid2sim.envs", "vid2sim.registry")
+
+
+def user_facing_configs() -> list[type]:
+    """Every dataclass named `*Config` defined in the training, env and registry packages."""
+    found = []
+    for name in CONFIG_PACKAGES:
+        pkg = importlib.import_module(name)
+        for info in pkgutil.walk_packages(pkg.__path__, name + "."):
+            mod = importlib.import_module(info.name)
+            found += [obj for attr, obj in vars(mod).items() if inspect.isclass(obj) and attr.endswith("Config")
+                      and obj.__module__ == mod.__name__ and dataclasses.is_dataclass(obj)]
+    return sorted(found, key=lambda c: c.__name__)
+
+
+CONFIGS = user_facing_configs()
+STAND_INS = {str: "", int: 1, float: 1.0, bool: False}
+
+
+def leaf_types(tp: Any) -> set:
+    """The scalar types a field annotation holds (through Optional, tuple and list; dicts hold none here)."""
+    origin = typing.get_origin(tp)
+    if origin is dict or tp is dict:
+        return set()
+    if origin in (typing.Union, types.UnionType, tuple, list):
+        return set().union(*(leaf_types(a) for a in typing.get_args(tp) if a is not Ellipsis))
+    return {tp}
+
+
+def built(cls: type) -> Any:
+    """`cls` with its required fields given stand-ins (a count list: [1])."""
+    hints = type_hints(cls)
+    required = {f.name for f in dataclasses.fields(cls)
+                if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING}
+    return cls(**{n: [1] if typing.get_origin(hints[n]) is list else STAND_INS.get(hints[n]) for n in required})
+
+
+def own_numeric_fields(cls: type) -> list[tuple[str, bool]]:
+    """(name, holds floats) of the class's own numeric fields (nested configs are classes of their own)."""
+    out = []
+    for name, tp in type_hints(cls).items():
+        kinds = leaf_types(tp)
+        if kinds & {int, float} and bool not in kinds:
+            out.append((name, float in kinds))
+    return out
+
+
+def with_item(value: Any, bad: Any) -> Any:
+    """`bad` in place of a scalar, or as the first item of a tuple / list (kept its type)."""
+    if isinstance(value, (tuple, list)):
+        return type(value)([bad, *value[1:]])
+    return bad
+
+
+API_FIELDS = [(cls, name, floats) for cls in CONFIGS for name, floats in own_numeric_fields(cls)]
+
+
+def test_every_config_checks_itself():
+    names = {c.__name__ for c in CONFIGS}
+    assert {"StudyConfig", "DistillConfig", "StudentConfig", "EvalConfig", "TrainConfig", "SACConfig", "EnvConfig",
+            "AugmentConfig", "SplitConfig"} <= names
+    assert [c.__name__ for c in CONFIGS if c not in CHECKED] == []
+    assert len(API_FIELDS) > 100
+
+
+@pytest.mark.parametrize("cls", CONFIGS, ids=[c.__name__ for c in CONFIGS])
+def test_config_defaults_lie_inside_their_ranges(cls):
+    check_ranges(built(cls))
+
+
+@pytest.mark.parametrize("cls,name,floats", API_FIELDS, ids=[f"{c.__name__}.{n}" for c, n, _ in API_FIELDS])
+def test_building_a_config_out_of_range_is_named(cls, name, floats):
+    base = built(cls)
+    value = getattr(base, name)
+    for bad in bad_values(name, floats):
+        with pytest.raises(RangeError, match=rf"^{cls.__name__}\.{name}: .* is out of range \(must be "):
+            dataclasses.replace(base, **{name: with_item(value, bad)})
+
+
+@pytest.mark.parametrize("build,named", [
+    (lambda: StudyConfig(registry="r", out_dir="o", counts=[1, -3]), "StudyConfig.counts: -3"),
+    (lambda: StudyConfig(registry="r", out_dir="o", counts=[1], total_steps=0), "StudyConfig.total_steps: 0"),
+    (lambda: StudyConfig(registry="r", out_dir="o", counts=[1], num_cpus_per_run=math.nan),
+     "StudyConfig.num_cpus_per_run: nan"),
+    (lambda: DistillConfig(batch_size=0), "DistillConfig.batch_size: 0"),
+    (lambda: DistillConfig(student={"pool": 0}), "StudentConfig.pool: 0"),
+    (lambda: EvalConfig(registry="r", policy="p", trials=-1), "EvalConfig.trials: -1"),
+    (lambda: TrainConfig(run_dir="x", total_steps=10, train_scenes=0), "TrainConfig.train_scenes: 0"),
+    (lambda: TrainConfig.from_dict({"run_dir": "x", "total_steps": 10, "sac": {"gamma": math.inf}}),
+     "SACConfig.gamma: inf"),
+])
+def test_python_api_names_the_field_and_the_reason(build, named):
+    with pytest.raises(RangeError, match=rf"^{re.escape(named)} is out of range \(must be "):
+        build()
+
+
+def test_a_loaded_run_config_is_checked(tmp_path):
+    path = tmp_path / "config.json"
+    TrainConfig(run_dir="x", total_steps=10).save(path)
+    path.write_text(path.read_text().replace('"batch_size": 128', '"batch_size": 0'))
+    with pytest.raises(RangeError, match=r"^DistillConfig.batch_size: 0 is out of range"):
+        TrainConfig.load(path)
+
+
+def test_study_counts_beyond_the_train_pool_are_a_named_error(tmp_path):
+    """The pool is the registry split's train side: a larger count is refused before any training starts."""
+    from registry_fixtures import make_bundle
+
+    from vid2sim.registry import Registry
+
+    reg = Registry(tmp_path / "reg")
+    for i in range(5):
+        reg.add(make_bundle(tmp_path / f"b{i}", f"scene-{i}", group=f"walk-{i}", seed=i, n_splats=20))
+    pool = len(reg.split(seed=0).train)
+    config = StudyConfig(registry=str(reg.root), out_dir=str(tmp_path / "study"), counts=[1, pool + 1], seeds=1)
+    with pytest.raises(StudyError, match=rf"bad_count: training-scene counts \[{pool + 1}\] are outside 1\.\.{pool}"):
+        run_study(config)
+    assert not list((tmp_path / "study").glob("n*_s*"))

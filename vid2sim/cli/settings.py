@@ -33,7 +33,7 @@ from functools import lru_cache
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
-from vid2sim.cli.ranges import RangeError, check_ranges, check_value
+from vid2sim.ranges import RangeError, check_ranges, check_value
 
 MISSING = dataclasses.MISSING
 
@@ -527,7 +527,7 @@ def apply_overrides(config: Any, sets: Optional[Sequence[str]]) -> Any:
 
 def _apply_sets(config: Any, sets: Optional[Sequence[str]], prefix: str = "") -> Any:
     """`apply_overrides` for a config that sits at `prefix` (its paths given without it); the result's
-    numeric fields are range-checked (`vid2sim.cli.ranges`)."""
+    numeric fields are range-checked (`vid2sim.ranges`)."""
     for item in sets or ():
         path, raw = parse_set(item)
         try:

@@ -13,8 +13,8 @@ from rich.table import Table
 
 from vid2sim.cli.errors import InputError
 from vid2sim.cli.inputs import creatable_folder, registry_root
-from vid2sim.cli.ranges import check_ranges
 from vid2sim.cli.settings import apply_or_exit
+from vid2sim.ranges import check_ranges
 from vid2sim.training.actions import check_map
 from vid2sim.training.config import METHODS, DistillConfig, SACConfig, TrainConfig
 from vid2sim.training.distill import summary, train_distill

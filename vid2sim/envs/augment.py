@@ -22,6 +22,8 @@ import math
 import numpy as np
 from numba import njit
 
+from vid2sim.ranges import checked
+
 TINTS = {  # per-channel RGB gain and overall brightness
     "day": ((1.0, 1.0, 1.0), 1.0),
     "golden": ((1.12, 0.98, 0.80), 0.95),
@@ -30,6 +32,7 @@ TINTS = {  # per-channel RGB gain and overall brightness
 }
 
 
+@checked
 @dataclass
 class AugmentConfig:
     """Ranges and probabilities of the per-episode augmentation."""

@@ -38,12 +38,14 @@ from typing import Literal, Optional, Sequence, Union
 from vid2sim.envs.augment import AugmentConfig
 from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.formats.robot import ROBOT
+from vid2sim.ranges import checked
 
 Variant = Literal["rgb", "depth", "mesh-rgb"]
 VARIANTS: tuple[str, ...] = ("rgb", "depth", "mesh-rgb")
 FIDELITIES: tuple[str, ...] = ("exact", "fast")
 
 
+@checked
 @dataclass(frozen=True)
 class RobotConfig:
     wheelbase: float = ROBOT.wheelbase_m  # m, bicycle-model wheelbase (paper)
@@ -63,6 +65,7 @@ class RobotConfig:
         return math.radians(self.max_steer_deg)
 
 
+@checked
 @dataclass(frozen=True)
 class CameraConfig:
     width: int = ROBOT.camera_width_px  # px, observation image width
@@ -83,6 +86,7 @@ class CameraConfig:
         return 0.5 * self.height / math.tan(math.radians(self.vfov_deg) / 2)
 
 
+@checked
 @dataclass(frozen=True)
 class RewardConfig:
     """The paper's appendix: R = R_term + c1 R_dist + c2 R_steer + c3 R_crash + c4 R_time."""
@@ -98,6 +102,7 @@ class RewardConfig:
     max_steps: int = 3000  # truncated with the failure reward
 
 
+@checked
 @dataclass(frozen=True)
 class EpisodeConfig:
     geodesic_range: tuple[float, float] = (10.0, 30.0)  # m, start-goal geodesic distance range (paper)
@@ -115,6 +120,7 @@ class EpisodeConfig:
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS
 
 
+@checked
 @dataclass(frozen=True)
 class FastRenderConfig:
     """The fast render path (fidelity "fast"): sim-ready set and early stop.
@@ -138,6 +144,7 @@ class FastRenderConfig:
     cell_size: int = 64  # splats per culling cell
 
 
+@checked
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything a NavEnv needs besides the scene source."""

@@ -17,7 +17,10 @@ from typing import Optional
 
 import numpy as np
 
+from vid2sim.ranges import checked
 
+
+@checked
 @dataclass(frozen=True)
 class ExpertConfig:
     lookahead: float = 1.0  # m

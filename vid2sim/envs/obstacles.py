@@ -29,6 +29,7 @@ import numpy as np
 import trimesh
 
 from vid2sim.bullet import import_pybullet
+from vid2sim.ranges import checked
 
 from .raster import rasterize, rasterize_into
 
@@ -310,6 +311,7 @@ class ObstacleSet:
         self.placements = []
 
 
+@checked
 @dataclass
 class ObstacleConfig:
     """Obstacles per episode: 0..max_count on the corridor, plus optional safety scenarios."""

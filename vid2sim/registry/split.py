@@ -14,6 +14,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Optional, Sequence
 
+from vid2sim.ranges import checked
 from vid2sim.registry.records import ACTIVE, SceneRecord
 
 
@@ -21,6 +22,7 @@ class SplitError(ValueError):
     """The requested split cannot be made from the selected scenes."""
 
 
+@checked
 @dataclass
 class SplitConfig:
     seed: int = 0

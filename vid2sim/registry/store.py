@@ -36,6 +36,7 @@ from urllib.parse import urlparse
 
 import pyarrow as pa
 
+from vid2sim.ranges import checked
 from vid2sim.registry.blobs import (ArrowBlobStore, BlobStore, LocalBlobStore, arrow_filesystem,
                                     name_owner, owner, process_state, sha256_file, temp_in_use)
 from vid2sim.formats.bundle import BundleInfo, validate_bundle
@@ -66,6 +67,7 @@ class AddResult:
     noop: bool
 
 
+@checked
 @dataclass(frozen=True)
 class RegistryConfig:
     """Registry knobs (defaults suit thousands of scenes on a local disk or object store)."""

@@ -1,4 +1,6 @@
-"""Typed configs for training runs (saved in every run folder)."""
+"""Typed configs for training runs (saved in every run folder).
+
+Each checks its numeric fields whenever it is built, loaded included (`vid2sim.ranges`, `@checked`)."""
 
 from __future__ import annotations
 
@@ -7,11 +9,13 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, Optional
 
+from vid2sim.ranges import checked
 from vid2sim.training.student import StudentConfig
 
 METHODS = ("sac", "distill")
 
 
+@checked
 @dataclass
 class SACConfig:
     """SAC hyper-parameters; the defaults are the paper's preset (supplementary, SAC table)."""
@@ -39,6 +43,7 @@ class SACConfig:
     # demonstrations alone, once, before SAC's own actions are used (avoids starting from a random actor)
 
 
+@checked
 @dataclass
 class DistillConfig:
     """Teacher-student distillation (DAgger, `training/distill.py`): rounds of collection and fitting."""
@@ -61,14 +66,9 @@ class DistillConfig:
     def __post_init__(self) -> None:
         if isinstance(self.student, dict):
             self.student = StudentConfig(**self.student)
-        for name in ("steps_per_round", "updates_per_round", "batch_size", "max_samples"):
-            if getattr(self, name) <= 0:
-                raise ValueError(f"distill.{name} must be > 0, got {getattr(self, name)}")
-        for name in ("beta0", "beta_decay", "min_beta"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"distill.{name} must be in [0, 1], got {getattr(self, name)}")
 
 
+@checked
 @dataclass
 class TrainConfig:
     """One training run: which scenes, how many envs and actors, the budget, where to write."""
@@ -96,10 +96,6 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method must be one of {', '.join(METHODS)}, got {self.method!r}")
-        if self.total_steps <= 0:
-            raise ValueError(f"total_steps must be > 0, got {self.total_steps}")
-        if self.n_envs <= 0:
-            raise ValueError(f"n_envs must be > 0, got {self.n_envs}")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -33,6 +33,7 @@ from vid2sim.envs.expert import PurePursuitExpert
 from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
 from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.envs.recording import RecordEpisode
+from vid2sim.ranges import checked
 from vid2sim.registry import Registry
 from vid2sim.training.actions import to_env
 from vid2sim.training.distill import STUDENT_NAME
@@ -42,6 +43,7 @@ OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
 METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
 
 
+@checked
 @dataclass
 class EvalConfig:
     registry: str  # registry root

@@ -29,6 +29,7 @@ from stable_baselines3.common.env_util import is_wrapped
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from vid2sim.factory.runtime.orchestrator import init_ray  # noqa: F401  (the one Ray start, re-exported)
+from vid2sim.ranges import checked
 from vid2sim.training.actions import ActionMapping
 from vid2sim.training.wrappers import ExpertActions, StuckTermination, TeacherLabels
 
@@ -156,6 +157,7 @@ class EnvWorker:
             env.close()
 
 
+@checked
 @dataclass
 class RayVecEnvConfig:
     n_actors: int = 2

@@ -27,11 +27,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vid2sim.ranges import checked
 from vid2sim.training.policy import VECTOR_SCALE
 
 STACK = 6  # frames in the env observation
 
 
+@checked
 @dataclass
 class StudentConfig:
     """Encoder and input size of the pixel student (see the module docs)."""
@@ -44,14 +46,10 @@ class StudentConfig:
     vector_dim: int = 64  # features of the goal-vector history
     hidden: int = 256  # head width
 
-    def __post_init__(self) -> None:
-        if not 1 <= self.frames <= STACK:
-            raise ValueError(f"student frames must be in 1..{STACK}, got {self.frames}")
-        if self.frame_stride < 1 or (self.frames - 1) * self.frame_stride + 1 > STACK:
+    def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
+        if (self.frames - 1) * self.frame_stride + 1 > STACK:
             raise ValueError(f"student frames x frame_stride must fit the {STACK} stacked frames, got "
                              f"{self.frames} x {self.frame_stride}")
-        if self.pool < 1:
-            raise ValueError(f"student pool must be >= 1, got {self.pool}")
         self.channels = tuple(int(c) for c in self.channels)
         if len(self.channels) != 4:
             raise ValueError(f"student channels must list 4 conv widths, got {list(self.channels)}")

@@ -4,7 +4,8 @@ For every count N and seed s: train (SAC, or the distilled pixel student with `m
 on the registry split's nested train subset of size N (train-1 within train-5 within ...; the
 registry provides them), then evaluate on the split's held-out test scenes. Each (N, s) training +
 evaluation is one Ray task (`num_cpus` each), so a cluster runs them side by side. A count larger
-than the train pool is refused (`StudyError`, named). Scene checkouts and their sim-ready sets are
+than the train pool is refused (`StudyError`, named) before any run starts; `StudyConfig`'s numeric
+fields are checked when it is built (`RangeError`, `vid2sim.ranges`). Scene checkouts and their sim-ready sets are
 shared by all runs (OUT/checkouts). Output: `study.json`, a table, and `study.png` (SR and SPL
 against N: mean over seeds, the seeds' spread, and the pooled 95 % bootstrap interval).
 """
@@ -23,6 +24,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import ray  # noqa: E402
 
+from vid2sim.ranges import checked  # noqa: E402
 from vid2sim.registry import Registry  # noqa: E402
 from vid2sim.training.config import DistillConfig, SACConfig, TrainConfig  # noqa: E402
 from vid2sim.training.distill import train_distill  # noqa: E402
@@ -34,6 +36,7 @@ class StudyError(ValueError):
     """A study that cannot run as asked (named reason first)."""
 
 
+@checked
 @dataclass
 class StudyConfig:
     registry: str

@@ -10,16 +10,24 @@ Some add an upper bound (`jpeg_quality` <= 100, `frames` <= 6, angles below 180 
 image sizes that decide an allocation: `width` / `height` <= 8192).
 Every float must be finite. Items of a tuple / list field take the field's range; None is allowed
 where the type is Optional. `check_ranges(config)` raises `RangeError` naming the dotted path.
+
+A config class decorated with `@checked` checks itself whenever it is built (its constructor,
+`dataclasses.replace`, a `from_dict` / `load`), so the Python API refuses what the command line
+refuses: `DistillConfig(batch_size=0)` raises `RangeError: DistillConfig.batch_size: 0 is out of
+range (must be >= 1)`. `CHECKED` lists those classes (`tests/test_config_ranges.py` walks them).
+This module sits in the base layer, so every package's configs can use it.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import re
 from dataclasses import dataclass
-from typing import Any, Iterator, Optional
+from typing import Any, Callable, Iterator, Optional, TypeVar
 
+T = TypeVar("T")
 
 
 class RangeError(ValueError):
@@ -55,7 +63,7 @@ UNIT = re.compile(r"(_prob|fraction)$|^(gamma|tau|beta0|beta_decay|min_beta|keep
 POSITIVE = re.compile(r"^(fps|image_fps|fallback_fps|clip_seconds|learning_rate|capture_height_m|wheelbase|"
                       r"max_speed|length|width|height|vfov_deg|near|far|depth_max|success_radius|step_m|"
                       r"area_spacing_m|bin_m|along_m|trunc_voxels|ground_point_cell_m|depth_max_m|timeout_s|"
-                      r"resolution_m|map_resolution_m|voxel_m|scale)$")
+                      r"resolution_m|map_resolution_m|voxel_m|scale|num_cpus_per_run|num_cpus_per_actor)$")
 COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_stack|physics_hz|control_hz|"
                     r"max_side|analysis_width|workers|max_image_size|max_num_features|overlap|num_threads|"
                     r"ransac_iters|max_width|sh_increase_every|checkpoint_every|every|"
@@ -64,7 +72,8 @@ COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_st
                     r"train_max_steps|frames|frame_stride|pool|frame_dim|vector_dim|hidden|image_dim|train_freq|"
                     r"gradient_steps|buffer_size|max_steps|seeds|counts|episodes|max_rows|"
                     r"max_gaussians|max_init_points|target_faces|visual_target_faces|net_arch|channels|"
-                    r"consistency_views|min_frames|min_ground_points|stuck_steps|eval_max_steps)$")
+                    r"consistency_views|min_frames|min_ground_points|stuck_steps|eval_max_steps|train_scenes|"
+                    r"n_steers)$")
 UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "sh_degree": 3, "port": 65535,
          "vfov_deg": 179, "max_steer_deg": 89, "max_tilt_deg": 90, "ground_normal_deg": 90,
          "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
@@ -121,3 +130,31 @@ def check_ranges(config: Any, prefix: str = "") -> Any:
     for path, value in numeric_fields(config, prefix):
         check_value(path, value)
     return config
+
+
+CHECKED: list[type] = []  # the config classes that check their ranges whenever they are built
+
+
+def checked(cls: type[T]) -> type[T]:
+    """Class decorator for a config dataclass: building it checks every numeric field (nested configs
+    included) and raises `RangeError` naming `Class.field`; before the class's own `__post_init__`,
+    so its cross-field checks see values inside their ranges."""
+    post = getattr(cls, "__post_init__", None)
+    if post is not None:
+        @functools.wraps(post)
+        def __post_init__(self: Any, *args: Any) -> None:
+            check_ranges(self, f"{type(self).__name__}.")
+            post(self, *args)
+
+        cls.__post_init__ = __post_init__  # type: ignore[attr-defined]
+    else:
+        init: Callable[..., None] = cls.__init__  # type: ignore[misc]
+
+        @functools.wraps(init)
+        def __init__(self: Any, *args: Any, **kwargs: Any) -> None:
+            init(self, *args, **kwargs)
+            check_ranges(self, f"{type(self).__name__}.")
+
+        cls.__init__ = __init__  # type: ignore[misc]
+    CHECKED.append(cls)
+    return cls
