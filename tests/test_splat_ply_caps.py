@@ -12,14 +12,14 @@ from plyfile import PlyData
 from registry_fixtures import make_bundle
 from typer.testing import CliRunner
 
-import vid2sim.formats.splat_ply as splat_ply
-import vid2sim.splats.ply as splats_ply
 from vid2sim.cli.app import app
 from vid2sim.formats.errors import BundleError, BundleTooLarge
 from vid2sim.formats.splat_ply import MAX_SPLATS, check_splats, read_splat_header
 from vid2sim.splats import GaussianModel, read_ply, write_ply
+from vid2sim.viewer.splats import read_splat_layer
 
 N = 7
+READERS = (read_splat_header, check_splats, read_ply, read_splat_layer)  # every reader of a bundle's splats.ply
 
 
 def valid_ply(path: Path, degree: int = 1) -> Path:
@@ -49,8 +49,7 @@ def no_body_reads(monkeypatch):
     """Any body read (plyfile) fails the test: the header checks must decide first."""
     def refuse(*args, **kwargs):
         raise AssertionError("the PLY body was read")
-    for module in (splat_ply, splats_ply):
-        monkeypatch.setattr(module.PlyData, "read", refuse)
+    monkeypatch.setattr(PlyData, "read", refuse)
 
 
 def test_valid_file_passes_the_header_check(tmp_path):
@@ -58,7 +57,7 @@ def test_valid_file_passes_the_header_check(tmp_path):
     header = read_splat_header(path)
     assert header.format == "binary_little_endian" and header.count == N
     assert header.row_bytes == 4 * 26 and header.header_bytes + header.body_bytes == path.stat().st_size
-    assert check_splats(path)[0] == N and read_ply(path).num == N
+    assert check_splats(path)[0] == N and read_ply(path).num == N and read_splat_layer(path).total == N
 
 
 def test_ascii_file_reads(tmp_path):
@@ -69,7 +68,7 @@ def test_ascii_file_reads(tmp_path):
 
 def test_count_over_the_cap_is_refused_before_the_body(tmp_path, no_body_reads):
     path = rewrite(valid_ply(tmp_path / "splats.ply"), f"element vertex {N}", f"element vertex {MAX_SPLATS + 1}")
-    for read in (read_splat_header, check_splats, read_ply):
+    for read in READERS:
         with pytest.raises(BundleTooLarge, match=r"splats.ply: declares 20,000,001 splats, over the cap of 20,000,000"):
             read(path)
 
@@ -87,7 +86,7 @@ def test_body_size_must_match_the_header(tmp_path, no_body_reads, cut, kind):
     path = valid_ply(tmp_path / "splats.ply")
     data = path.read_bytes()
     path.write_bytes(data[:cut] if cut < 0 else data + b"\0" * cut)
-    for read in (read_splat_header, check_splats, read_ply):
+    for read in READERS:
         with pytest.raises(BundleError, match=rf"splats.ply: {kind} PLY body: .* bytes after the header, the header "
                                               rf"declares 728 \(7 splats x 104 bytes\)"):
             read(path)
@@ -135,7 +134,7 @@ def test_bad_header_is_named(tmp_path, no_body_reads, case):
         path.write_bytes(header.replace(old, "ply\ncomment caf\u00e9\n", 1).encode("utf-8") + body)
     else:
         rewrite(path, old, REPLACEMENTS[case])
-    for read in (read_splat_header, check_splats, read_ply):
+    for read in READERS:
         with pytest.raises(BundleError, match=rf"splats.ply: .*{reason}") as err:
             read(path)
         assert not isinstance(err.value, BundleTooLarge)

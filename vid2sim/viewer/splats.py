@@ -4,6 +4,8 @@ The browser sorts and draws every Gaussian it is sent, so a scene is sent with a
 `budget` Gaussians (default DEFAULT_BUDGET): when a scene holds more, the ones kept are those
 with the largest opacity x projected area (opacity x the product of the two largest scales),
 the ones that cover most of the picture. Colours are the degree-0 SH term (view-independent).
+The file's header is checked before its body is read (`read_splat_header`: layout, the MAX_SPLATS
+cap, the body size).
 """
 
 from __future__ import annotations
@@ -13,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 from plyfile import PlyData
+
+from vid2sim.formats.splat_ply import read_splat_header
 
 DEFAULT_BUDGET = 400_000  # Gaussians sent to the browser
 SH_C0 = 0.28209479177387814
@@ -60,7 +64,9 @@ def covariances(quat_wxyz: np.ndarray, scales: np.ndarray) -> np.ndarray:
 
 
 def read_splat_layer(path: Path, budget: int = DEFAULT_BUDGET) -> SplatLayer:
-    """splats.ply -> SplatLayer of at most `budget` Gaussians."""
+    """splats.ply -> SplatLayer of at most `budget` Gaussians (BundleError before the body is read
+    when the header is not a 3DGS PLY within the caps)."""
+    read_splat_header(path)
     vertex = PlyData.read(str(path))["vertex"]
     opacity = 1.0 / (1.0 + np.exp(-np.asarray(vertex["opacity"], np.float32)))
     scales = np.exp(_columns(vertex, ("scale_0", "scale_1", "scale_2")))
