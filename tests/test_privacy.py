@@ -23,6 +23,7 @@ from vid2sim.factory.ingest import decode
 from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig, blur_mask
 from vid2sim.factory.ingest.privacy_probe import FacePose, composite, coverage, false_positives
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.factory.runtime.runner import run_stage
 
 POSES = [FacePose(14), FacePose(20, roll_deg=10), FacePose(28, yaw=0.3), FacePose(36, mirror=True, motion_px=2),
          FacePose(48, roll_deg=-20), FacePose(64, yaw=0.15)]
@@ -71,6 +72,18 @@ def test_faces_and_plates_found_and_blurred_on_a_synthetic_street(street: np.nda
     check_anonymised(street, seed=0)
 
 
+def test_turned_pass_maps_its_boxes_back_to_the_upright_frame() -> None:
+    c = composite(texture(360, 640, seed=2), [FacePose(90)], [], np.random.default_rng(3))
+    anon = Anonymiser(FaceConfig(), PlateConfig(detector="none"))
+    for degrees in (20.0, -20.0):
+        boxes, _ = anon.detector._run_turned(c.image, degrees)  # [K, 4] in the upright frame
+        cov = coverage(blur_mask(c.image.shape[:2], boxes, 0.3), c.faces)
+        assert cov[0] >= 0.8, (degrees, boxes, c.faces)
+        x0, y0, x1, y1 = c.faces[0]
+        best = boxes[np.argmax([min(b[2], x1) - max(b[0], x0) for b in boxes])]
+        assert (best[2] - best[0]) * (best[3] - best[1]) < 3 * (x1 - x0) * (y1 - y0)  # the face, not the frame
+
+
 @pytest.mark.shared_data
 def test_faces_and_plates_found_and_blurred_on_a_real_street() -> None:
     frame = cv2.imread(str(sorted((shared_data_path("opensfm_lund_street") / "images").glob("*.jpg"))[3]))
@@ -109,7 +122,7 @@ def test_decode_writes_no_unblurred_face_or_plate(tmp_path: Path) -> None:
         frame[objects] = c.image[objects]
         raws.append(frame)
         cv2.imwrite(str(folder / f"{i + 1}.png"), frame)
-    out = decode.main(replace(decode.DecodeConfig(workers=1), min_frames=4), folder, tmp_path / "out")
+    out = run_stage(decode.work(replace(decode.DecodeConfig(workers=1), min_frames=4), folder), tmp_path / "out")
     table = pq.read_table(out / "frames.parquet").to_pylist()
     kept = [r for r in table if r["kept"]]
     assert len(kept) >= 4 and all(r["faces"] == 3 and r["plates"] >= 1 for r in kept)
