@@ -25,6 +25,7 @@ sys.path.insert(0, str(ROOT))
 from common import Run, add_run_args  # noqa: E402  (benchmarks/common.py)
 from vid2sim.factory.ingest import decode, masks  # noqa: E402
 from vid2sim.factory.ingest.privacy import Anonymiser  # noqa: E402
+from vid2sim.factory.runtime.runner import run_stage  # noqa: E402
 
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 
@@ -79,13 +80,13 @@ def bench(args: argparse.Namespace) -> None:
     timed("  sharpness + duplicate flow", lambda: decode.filter_samples(samples, conf))
     blur = Anonymiser(conf.faces, conf.plates)
     timed("  face detection, 10 frames, 1 proc", lambda: [blur(s.image) for s in samples[:10]])
-    d = timed("decode stage (total)", lambda: decode.main(conf, video, out / "decode"))
-    m = timed("masks stage (total)", lambda: masks.main(masks.MasksConfig(), d, out / "masks"))
+    d = timed("decode stage (total)", lambda: run_stage(decode.work(conf, video), out / "decode"))
+    m = timed("masks stage (total)", lambda: run_stage(masks.work(masks.MasksConfig(), d), out / "masks"))
     summary("decode summary", d)
     summary("masks summary", m)
     lund = DATA / "opensfm_lund_street" / "images"
     if lund.exists():
-        ld = timed("lund folder decode (29 photos)", lambda: decode.main(conf, lund, out / "lund"))
+        ld = timed("lund folder decode (29 photos)", lambda: run_stage(decode.work(conf, lund), out / "lund"))
         summary("lund summary", ld)
     if args.out is None:
         shutil.rmtree(out)

@@ -28,7 +28,8 @@ import numpy as np
 from common import Run, add_run_args  # benchmarks/common.py
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon import config as C
-from vid2sim.factory.recon.trainer import main as reconstruct
+from vid2sim.factory.recon.trainer import work as recon_work
+from vid2sim.factory.runtime.runner import run_stage
 
 ROOT = Path(__file__).resolve().parent.parent
 REAL = ROOT.parent / "shared" / "data" / "gopro_max_sidewalk"
@@ -82,10 +83,10 @@ def real_clip(work: Path) -> Optional[Path]:
     try:
         pc = pipeline_preset("fast")
         t0 = time.perf_counter()
-        dec = decode.main(pc.decode, video, work / "real" / "decode")
-        msk = masks.main(pc.masks, dec, work / "real" / "masks")
-        sfm_dir = sfm.main(pc.sfm, dec / "images", msk / "masks", work / "real" / "sfm")
-        posed = metric.main(pc.metric, sfm_dir, work / "real" / "metric")
+        dec = run_stage(decode.work(pc.decode, video), work / "real" / "decode")
+        msk = run_stage(masks.work(pc.masks, dec), work / "real" / "masks")
+        sfm_dir = run_stage(sfm.work(pc.sfm, dec / "images", msk / "masks"), work / "real" / "sfm")
+        posed = run_stage(metric.work(pc.metric, sfm_dir), work / "real" / "metric")
         secs = RUN.record("real: front half (decode, masks, SfM, metric)", "seconds", time.perf_counter() - t0, "s")
         print(f"[real] front half (decode, masks, SfM, metric) {secs:.0f} s")
         return Path(posed)
@@ -98,7 +99,7 @@ def run_pair(name: str, posed: Path, work: Path, conf: C.ReconConfig, gt_depth: 
     rows = {}
     for variant, c in (("3dgs", C.baseline(conf)), ("geometry", conf)):
         t0 = time.perf_counter()
-        out = reconstruct(c, posed, work / f"{name}_{variant}", gt_depth_dir=gt_depth)
+        out = run_stage(recon_work(c, posed, gt_depth_dir=gt_depth), work / f"{name}_{variant}")
         m = json.loads((out / "metrics.json").read_text())
         m.pop("per_frame", None)
         m["wall_seconds"] = time.perf_counter() - t0

@@ -27,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 
 from common import Run, add_run_args  # benchmarks/common.py
+from vid2sim.factory.runtime.runner import run_stage
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
@@ -45,8 +46,8 @@ def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tupl
     from vid2sim.factory.ingest import decode, masks
 
     dconf = decode.DecodeConfig(fps=10.0, max_side=max_side, workers=2)
-    ddir = timed(times, "decode", lambda: decode.main(dconf, str(video), work / "decode"))
-    mdir = timed(times, "masks", lambda: masks.main(masks.MasksConfig(), ddir, work / "masks"))
+    ddir = timed(times, "decode", lambda: run_stage(decode.work(dconf, str(video)), work / "decode"))
+    mdir = timed(times, "masks", lambda: run_stage(masks.work(masks.MasksConfig(), ddir), work / "masks"))
     return ddir / "images", mdir / "masks"
 
 
@@ -54,8 +55,8 @@ def sfm_and_metric(sconf: Any, mconf: Any, images: Path, masks_dir: Any, work: P
                    times: dict) -> tuple[Path, Path, dict]:
     from vid2sim.factory.sfm import metric, sfm
 
-    sdir = timed(times, "sfm", lambda: sfm.main(sconf, images, masks_dir, work / "sfm"))
-    pdir = timed(times, "metric", lambda: metric.main(mconf, sdir, work / "metric"))
+    sdir = timed(times, "sfm", lambda: run_stage(sfm.work(sconf, images, masks_dir), work / "sfm"))
+    pdir = timed(times, "metric", lambda: run_stage(metric.work(mconf, sdir), work / "metric"))
     return sdir, pdir, sfm.load_quality(sdir)
 
 
@@ -120,8 +121,8 @@ def run_gopro(work: Path, preset: str) -> dict:
     est = load_posed_clip(pdir)
     rot = gopro_rotation_errors(est, src / "telemetry_orientation_per_frame.csv", deltas=(1, 5, 15),
                                 fps=29.97, stride=3)
-    gps = metric.main(metric.MetricConfig(gps_csv=str(src / "telemetry_gps5.csv")), work / "sfm",
-                      work / "metric_gps")
+    gps = run_stage(metric.work(metric.MetricConfig(gps_csv=str(src / "telemetry_gps5.csv")), work / "sfm"),
+                    work / "metric_gps")
     s_h = json.loads((pdir / "frame.json").read_text())["scale"]
     s_gps = json.loads((gps / "frame.json").read_text())["scale"]
     extra = {"rotation_error_deg (fitted median per delta)":

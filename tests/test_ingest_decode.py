@@ -16,6 +16,7 @@ from ingest_media import make_video, panning_frames, texture, write_video
 from vid2sim.factory.ingest import decode
 from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig
 from vid2sim.factory.runtime.stage_cache import StageError, load_record
+from vid2sim.factory.runtime.runner import run_stage
 
 CONF = decode.DecodeConfig(workers=1)
 
@@ -23,7 +24,7 @@ CONF = decode.DecodeConfig(workers=1)
 def _decode_error(tmp_path: Path, source, conf=CONF) -> StageError:
     out = tmp_path / "out"
     with pytest.raises(StageError) as e:
-        decode.main(conf, source, out)
+        run_stage(decode.work(conf, source), out)
     assert e.value.stage == "decode"
     assert not out.exists()  # nothing written
     return e.value
@@ -34,7 +35,7 @@ def test_decode_samples_filters_and_writes(tmp_path: Path) -> None:
     frames[12] = cv2.GaussianBlur(frames[12], (0, 0), 4)  # badly blurred
     frames[19:24] = [frames[18]] * 5  # the camera stopped
     video = write_video(tmp_path / "walk.mp4", frames, fps=20)
-    out = decode.main(replace(CONF, fps=10.0), video, tmp_path / "out")  # every 2nd frame
+    out = run_stage(decode.work(replace(CONF, fps=10.0), video), tmp_path / "out")  # every 2nd frame
     table = pq.read_table(out / "frames.parquet").to_pylist()
     assert [r["source_frame"] for r in table] == list(range(0, 40, 2))
     reasons = {r["source_frame"]: r["reason"] for r in table if not r["kept"]}
@@ -54,16 +55,16 @@ def test_decode_samples_filters_and_writes(tmp_path: Path) -> None:
 def test_window_resize_and_skip(tmp_path: Path) -> None:
     video = make_video(tmp_path / "walk.mp4", n=90, fps=30, h=240, w=320)
     conf = replace(CONF, fps=15.0, max_side=160)
-    out = decode.main(conf, video, tmp_path / "out", window=(1.0, 2.0))
+    out = run_stage(decode.work(conf, video, window=(1.0, 2.0)), tmp_path / "out")
     table = pq.read_table(out / "frames.parquet")
     ts = table.column("timestamp").to_pylist()
     assert len(ts) == 15 and 1.0 - 1e-6 <= min(ts) and max(ts) < 2.0
     assert cv2.imread(str(out / "images" / "000000.jpg")).shape == (120, 160, 3)
     stamp = (out / "stage.json").stat().st_mtime_ns
-    decode.main(conf, video, tmp_path / "out", window=(1.0, 2.0))  # same key: skipped
+    run_stage(decode.work(conf, video, window=(1.0, 2.0)), tmp_path / "out")  # same key: skipped
     assert (out / "stage.json").stat().st_mtime_ns == stamp
     with pytest.raises(StageError) as e:
-        decode.main(conf, video, tmp_path / "out2", window=(10.0, 12.0))
+        run_stage(decode.work(conf, video, window=(10.0, 12.0)), tmp_path / "out2")
     assert e.value.reason == "empty_window"
 
 
@@ -81,7 +82,7 @@ def test_faces_blurred_before_writing(tmp_path: Path) -> None:
     folder.mkdir()
     for i in range(12):
         cv2.imwrite(str(folder / f"{i + 1}.png"), _face_scene(i))
-    out = decode.main(CONF, folder, tmp_path / "out")
+    out = run_stage(decode.work(CONF, folder), tmp_path / "out")
     table = pq.read_table(out / "frames.parquet").to_pylist()
     assert len(table) == 12 and all(r["kept"] and r["faces"] >= 1 for r in table)
     raw = _face_scene(0)[85:155, 170:245]  # the face (eyes, nose, mouth)

@@ -14,6 +14,7 @@ import torch
 from ingest_media import object_box, panning_frames
 from vid2sim.factory.ingest import decode, masks
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.factory.runtime.runner import run_stage
 
 OBJ = dict(size=36, vx=-2, vy=1, x=150, y=40)  # moves against a camera panning at 3 px/frame
 
@@ -23,7 +24,7 @@ def _decoded(tmp_path: Path, frames: list[np.ndarray]) -> Path:
     folder.mkdir()
     for i, f in enumerate(frames):
         cv2.imwrite(str(folder / f"{i:03d}.png"), f)
-    return decode.main(decode.DecodeConfig(workers=1, dup_flow_px=0.0), folder, tmp_path / "decode")
+    return run_stage(decode.work(decode.DecodeConfig(workers=1, dup_flow_px=0.0), folder), tmp_path / "decode")
 
 
 def _gt(i: int, shape: tuple) -> np.ndarray:
@@ -35,7 +36,7 @@ def _gt(i: int, shape: tuple) -> np.ndarray:
 
 def test_moving_object_masked_static_background_kept(tmp_path: Path) -> None:
     frames = panning_frames(16, h=240, w=320, speed=3.0, obj=OBJ)
-    out = masks.main(masks.MasksConfig(), _decoded(tmp_path, frames), tmp_path / "masks")
+    out = run_stage(masks.work(masks.MasksConfig(), _decoded(tmp_path, frames)), tmp_path / "masks")
     files = sorted((out / "masks").iterdir())
     assert [p.name for p in files] == [f"{i:06d}.jpg.png" for i in range(16)]
     recalls, false_bg = [], []
@@ -54,7 +55,7 @@ def test_moving_object_masked_static_background_kept(tmp_path: Path) -> None:
 
 def test_static_scene_has_no_dynamic_pixels(tmp_path: Path) -> None:
     frames = panning_frames(12, h=240, w=320, speed=3.0)
-    out = masks.main(masks.MasksConfig(), _decoded(tmp_path, frames), tmp_path / "masks")
+    out = run_stage(masks.work(masks.MasksConfig(), _decoded(tmp_path, frames)), tmp_path / "masks")
     dyn = [np.mean(cv2.imread(str(p), 0) == 0) for p in sorted((out / "masks").iterdir())]
     assert max(dyn) < 0.005
 
@@ -77,7 +78,7 @@ def test_learned_segmenter_plugin_keeps_only_moving_segments(tmp_path: Path) -> 
     model = tmp_path / "seg.pt"
     torch.jit.script(_RedSegmenter()).save(str(model))
     conf = masks.MasksConfig(segmenter_path=str(model), segmenter_classes=(1,))
-    out = masks.main(conf, _decoded(tmp_path, frames), tmp_path / "masks")
+    out = run_stage(masks.work(conf, _decoded(tmp_path, frames)), tmp_path / "masks")
     body, sign = [], []
     for i, p in enumerate(sorted((out / "masks").iterdir())):
         dyn = cv2.imread(str(p), 0) == 0
@@ -93,13 +94,14 @@ def test_learned_segmenter_plugin_keeps_only_moving_segments(tmp_path: Path) -> 
 
 def test_errors_and_skip(tmp_path: Path) -> None:
     with pytest.raises(StageError) as e:
-        masks.main(masks.MasksConfig(), tmp_path / "nowhere", tmp_path / "masks")
+        run_stage(masks.work(masks.MasksConfig(), tmp_path / "nowhere"), tmp_path / "masks")
     assert e.value.reason == "missing_input" and not (tmp_path / "masks").exists()
     dec = _decoded(tmp_path, panning_frames(10, speed=3.0))
     with pytest.raises(StageError) as e:
-        masks.main(replace(masks.MasksConfig(), segmenter_path=str(tmp_path / "none.pt")), dec, tmp_path / "m2")
+        conf = replace(masks.MasksConfig(), segmenter_path=str(tmp_path / "none.pt"))
+        run_stage(masks.work(conf, dec), tmp_path / "m2")
     assert e.value.reason == "missing_segmenter" and not (tmp_path / "m2").exists()
-    out = masks.main(masks.MasksConfig(), dec, tmp_path / "masks")
+    out = run_stage(masks.work(masks.MasksConfig(), dec), tmp_path / "masks")
     stamp = (out / "stage.json").stat().st_mtime_ns
-    masks.main(masks.MasksConfig(), dec, tmp_path / "masks")
+    run_stage(masks.work(masks.MasksConfig(), dec), tmp_path / "masks")
     assert (out / "stage.json").stat().st_mtime_ns == stamp

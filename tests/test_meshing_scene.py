@@ -15,6 +15,7 @@ from vid2sim.factory.geometry.raycast import RaycastRenderer, look_at
 from vid2sim.factory.geometry.visual_mesh import load_visual_mesh, render_rgb
 from vid2sim.factory.geometry.walkable import WalkableConfig, walkable_map
 from vid2sim.formats.walkable import WalkableGrid, load_walkable
+from vid2sim.factory.runtime.runner import run_stage
 
 GROUND_RGB, OBST_RGB = (90, 90, 90), (200, 60, 40)
 # obstacles: (centre x, y), (size x, y), height
@@ -184,7 +185,7 @@ def test_walkable_map_against_analytic_gt(scene_data):
 
 def test_stage_main_writes_and_skips(scene_data, tmp_path):
     _, views, path, _ = scene_data
-    out = meshing.main(MeshingConfig(), views, tmp_path / "mesh", input_key="k1")
+    out = run_stage(meshing.work(MeshingConfig(), views, input_key="k1"), tmp_path / "mesh")
     for name in ("collision.ply", "visual_mesh.ply", "ground_points.npy", "carved_points.npy",
                  "meshing.json", "stage.json"):
         assert (out / name).is_file(), name
@@ -193,10 +194,10 @@ def test_stage_main_writes_and_skips(scene_data, tmp_path):
     assert load_visual_mesh(out / "visual_mesh.ply").has_vertex_colors()
     mtime = (out / "collision.ply").stat().st_mtime_ns
     # finished: a re-run with the same key does no work, even with an exhausted generator
-    assert meshing.main(MeshingConfig(), iter(()), out, input_key="k1") == out
+    assert run_stage(meshing.work(MeshingConfig(), iter(()), input_key="k1"), out) == out
     assert (out / "collision.ply").stat().st_mtime_ns == mtime
-    wout = walkable.main(WalkableConfig(), np.load(out / "ground_points.npy"),
-                         out / "collision.ply", path, tmp_path / "walk", input_key="k1")
+    wout = run_stage(walkable.work(WalkableConfig(), np.load(out / "ground_points.npy"),
+                                   out / "collision.ply", path, input_key="k1"), tmp_path / "walk")
     wm = load_walkable(wout / "walkable.npz")
     assert wm.lookup(path[:, 0], path[:, 1]).all()
 
@@ -215,7 +216,7 @@ def test_bad_input_raises_named_error(case, tmp_path):
     reason = {"no_views": "no_views", "all_zero": "no_valid_depth", "all_nan": "no_valid_depth",
               "shape": "shape_mismatch", "pose": "bad_pose"}[case]
     with pytest.raises(MeshingError) as e:
-        meshing.main(MeshingConfig(), views, tmp_path / "out")
+        run_stage(meshing.work(MeshingConfig(), views), tmp_path / "out")
     assert e.value.reason == reason and e.value.stage == "meshing"
     assert not (tmp_path / "out").exists()  # nothing stored
 

@@ -12,6 +12,7 @@ from vid2sim.factory.sfm import metric
 from vid2sim.factory.evaluation.poses import load_transforms_json
 from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.runtime.stage_cache import StageError, mark_done
+from vid2sim.factory.runtime.runner import run_stage
 
 W, H, F = 640, 480, 400.0
 
@@ -106,7 +107,8 @@ def test_main_writes_posed_clip_in_metric_world(tmp_path):
     xyz, c2w = _street(rng, 0.005, 50)
     rec = _reconstruction(xyz, c2w)
     _hidden_sim3(rec, rng)
-    out = metric.main(metric.MetricConfig(capture_height_m=1.6), _sfm_dir(tmp_path, rec), tmp_path / "metric")
+    conf = metric.MetricConfig(capture_height_m=1.6)
+    out = run_stage(metric.work(conf, _sfm_dir(tmp_path, rec)), tmp_path / "metric")
     clip = PosedClip.load(out)
     assert len(clip.frames) == 30
     assert [f.split for f in clip.frames[:9]] == ["test"] + ["train"] * 7 + ["test"]
@@ -123,7 +125,7 @@ def test_main_writes_posed_clip_in_metric_world(tmp_path):
     exported = load_transforms_json(out / "transforms.json")  # OpenGL axes back to OpenCV
     ours = np.stack([f.cam_to_world for f in clip.frames])
     np.testing.assert_allclose(exported.T, ours, atol=1e-9)
-    assert metric.main(metric.MetricConfig(capture_height_m=1.6), tmp_path / "sfm", out) == out  # cached
+    assert run_stage(metric.work(metric.MetricConfig(capture_height_m=1.6), tmp_path / "sfm"), out) == out  # cached
 
 
 def test_no_ground_points_is_a_named_error(tmp_path):
@@ -131,12 +133,12 @@ def test_no_ground_points_is_a_named_error(tmp_path):
     xyz, c2w = _street(rng, 0.0, 0)
     rec = _reconstruction(xyz[1500:], c2w)  # facades only: little below the cameras
     with pytest.raises(StageError) as e:
-        metric.main(metric.MetricConfig(min_ground_points=10_000), _sfm_dir(tmp_path, rec), tmp_path / "m")
+        run_stage(metric.work(metric.MetricConfig(min_ground_points=10_000), _sfm_dir(tmp_path, rec)), tmp_path / "m")
     assert e.value.reason == "no_ground_plane"
     assert not (tmp_path / "m" / "stage.json").exists()
 
 
 def test_missing_sfm_input_is_named(tmp_path):
     with pytest.raises(StageError) as e:
-        metric.main(metric.MetricConfig(), tmp_path / "nope", tmp_path / "m")
+        run_stage(metric.work(metric.MetricConfig(), tmp_path / "nope"), tmp_path / "m")
     assert e.value.reason == "missing_input"

@@ -16,7 +16,7 @@ from vid2sim.factory.ingest.sources import Source
 from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
 from vid2sim.factory.runtime.object_store import MARKER, ObjectStore
 from vid2sim.factory.runtime.runner import clip_work, run_step
-from vid2sim.factory.runtime.stage_cache import is_done, mark_done
+from vid2sim.factory.runtime.stage_cache import StageWork, is_done, mark_done
 from vid2sim.factory.runtime.staging import local_clip_dir
 from vid2sim.factory.runtime.steps.base import Step, StepOutputs
 
@@ -77,32 +77,31 @@ class AfterCount:
     count: Written
 
 
-def _count(conf: None, inputs: FromClip, out: Path) -> Written:
-    """A real step: cached by its marker; writes a file of its own output once."""
-    if not is_done(out, "key-1"):
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "frames.txt").write_text("frames")
-        mark_done(out, "count", "key-1", {}, 0.0)
-    return Written(out)
+def _writes(name: str, text: str):
+    """A step's work: write `text` to `name` in its folder."""
+    def build(out: Path) -> dict:
+        (out / name).write_text(text)
+        return {}
+    return build
 
 
-def _read(conf: None, inputs: AfterCount, out: Path) -> Written:
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "masks.txt").write_text((inputs.count.dir / "frames.txt").read_text() + "+masks")
-    mark_done(out, "read", "key-2", {}, 0.0)
-    return Written(out)
+def _count(conf: None, inputs: FromClip) -> StageWork:
+    """A real step: writes a file of its own output."""
+    return StageWork("count", 1, conf, (), _writes("frames.txt", "frames"))
 
 
-def _source(conf: None, inputs: FromClip, out: Path) -> Written:
+def _read(conf: None, inputs: AfterCount) -> StageWork:
+    text = (inputs.count.dir / "frames.txt").read_text() + "+masks"
+    return StageWork("read", 1, conf, (inputs.count.key,), _writes("masks.txt", text))
+
+
+def _source(conf: None, inputs: FromClip) -> StageWork:
     """Records where the clip's source was found (it must be this node's own copy)."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "source.txt").write_text(str(inputs.clip.source.path))
-    mark_done(out, "source", "k", {}, 0.0)
-    return Written(out)
+    return StageWork("source", 1, conf, (), _writes("source.txt", str(inputs.clip.source.path)))
 
 
-def _step(name: str, inputs: type, main) -> Step:
-    return Step(name, 1, inputs, Written, lambda conf, job: None, main)
+def _step(name: str, inputs: type, work) -> Step:
+    return Step(name, 1, inputs, Written, lambda conf, job: None, work)
 
 
 def _job(clip_id: str) -> ClipJob:

@@ -14,7 +14,8 @@ from vid2sim.factory.recon import config as C
 from vid2sim.factory.recon.data import load_views
 from vid2sim.factory.recon.evaluate import _lpips_fn
 from recon_toy import make_toy_clip
-from vid2sim.factory.recon.trainer import main, train
+from vid2sim.factory.recon.trainer import train, work
+from vid2sim.factory.runtime.runner import run_stage
 from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.splats.ply import read_ply
 
@@ -48,7 +49,7 @@ def test_presets_and_config_round_trip(tmp_path):
 
 def test_stage_writes_outputs_evaluates_and_skips_rerun(toy, tmp_path):
     conf = tiny_conf()
-    out = main(conf, toy, tmp_path / "run")
+    out = run_stage(work(conf, toy), tmp_path / "run")
     for name in ("splats.ply", "metrics.json", "config.json", "stage.json", "prior.npz"):
         assert (out / name).is_file(), name
     assert not (out / "checkpoint.pt").exists()
@@ -63,7 +64,7 @@ def test_stage_writes_outputs_evaluates_and_skips_rerun(toy, tmp_path):
     log = json.loads((out / "train_log.json").read_text())["log"]
     assert any(e.get("split", 0) + e.get("cloned", 0) > 0 for e in log)  # densification ran
     mtime = (out / "metrics.json").stat().st_mtime_ns
-    main(conf, toy, tmp_path / "run")  # finished: skipped
+    run_stage(work(conf, toy), tmp_path / "run")  # finished: skipped
     assert (out / "metrics.json").stat().st_mtime_ns == mtime
 
 
@@ -85,12 +86,12 @@ def test_training_lowers_the_photometric_loss_and_resumes(toy, tmp_path):
 
 def test_bad_inputs_are_named(toy, tmp_path):
     with pytest.raises(StageError, match="bad_posed_clip"):
-        main(tiny_conf(), tmp_path / "nowhere", tmp_path / "out")
+        run_stage(work(tiny_conf(), tmp_path / "nowhere"), tmp_path / "out")
     clip = PosedClip.load(toy)
     clip.points_xyz, clip.points_rgb = np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
     bad = clip.save(tmp_path / "nopoints")
     with pytest.raises(StageError, match="no_sparse_points"):
-        main(tiny_conf(), bad, tmp_path / "out2")
+        run_stage(work(tiny_conf(), bad), tmp_path / "out2")
     assert not (tmp_path / "out2" / "stage.json").exists()
 
 

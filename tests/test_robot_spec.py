@@ -98,6 +98,7 @@ def test_an_assembled_bundle_records_the_robot_the_envs_drive(tmp_path, monkeypa
     from vid2sim.factory.runtime.steps import bundle, meshing as meshing_step, metric, recon
     from vid2sim.factory.runtime.steps import walkable as walkable_step
     from vid2sim.factory.runtime.pipeline import ClipJob, PipelineConfig
+    from vid2sim.factory.runtime.runner import run_stage
     from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
     from vid2sim.formats.bundle import validate_bundle
     from vid2sim.formats.walkable import WalkableGrid
@@ -127,7 +128,8 @@ def test_an_assembled_bundle_records_the_robot_the_envs_drive(tmp_path, monkeypa
     job = ClipJob(ClipSpec("clip0", source, (0.0, 0.4), "g"), "robot-spec-1", "CC0")
     inputs = bundle.Inputs(metric.Outputs(posed), recon.Outputs(dirs["recon"]), meshing_step.Outputs(dirs["meshing"]),
                            walkable_step.Outputs(dirs["walkable"]))
-    info = validate_bundle(bundle.main(bundle.configure(PipelineConfig(), job), inputs, tmp_path / "bundle").scene)
+    out = run_stage(bundle.work(bundle.configure(PipelineConfig(), job), inputs), tmp_path / "bundle")
+    info = validate_bundle(bundle.Outputs(out).scene)
     recorded = RobotSpec.from_dict(info.scene["robot"])
     assert recorded == ROBOT == _robot_from_envs(RobotConfig(), CameraConfig())
     assert sorted(f.name for f in fields(RobotSpec)) == sorted(info.scene["robot"])

@@ -11,6 +11,7 @@ import pytest
 from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.camera_model import LensHint, choose_camera_model
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.factory.runtime.runner import run_stage
 
 
 def _texture(rng: np.random.Generator, w: int = 640, h: int = 360) -> np.ndarray:
@@ -36,7 +37,7 @@ def test_static_camera_fails_named(tmp_path):
     images = _write_frames(tmp_path / "images", frames)
     conf = sfm.preset("fast", max_image_size=640, max_num_features=1024, overlap=5)
     with pytest.raises(StageError) as e:
-        sfm.main(conf, images, None, tmp_path / "sfm")
+        run_stage(sfm.work(conf, images, None), tmp_path / "sfm")
     assert e.value.reason in ("static_camera", "too_few_registered")
     assert not (tmp_path / "sfm" / "stage.json").exists()
     assert sfm.load_quality(tmp_path / "sfm")["failed"] == e.value.reason
@@ -46,14 +47,14 @@ def test_too_few_frames_fails_named(tmp_path):
     rng = np.random.default_rng(1)
     images = _write_frames(tmp_path / "images", [_texture(rng, 160, 120) for _ in range(4)])
     with pytest.raises(StageError) as e:
-        sfm.main(sfm.preset("fast"), images, None, tmp_path / "sfm")
+        run_stage(sfm.work(sfm.preset("fast"), images, None), tmp_path / "sfm")
     assert e.value.reason == "too_few_frames"
     assert not (tmp_path / "sfm" / "stage.json").exists()
 
 
 def test_missing_images_folder_is_named(tmp_path):
     with pytest.raises(StageError) as e:
-        sfm.main(sfm.preset("fast"), tmp_path / "nope", None, tmp_path / "sfm")
+        run_stage(sfm.work(sfm.preset("fast"), tmp_path / "nope", None), tmp_path / "sfm")
     assert e.value.reason == "missing_input"
 
 

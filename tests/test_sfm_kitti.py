@@ -11,6 +11,7 @@ import pytest
 from conftest import shared_data_path
 from vid2sim.factory.sfm import metric, sfm
 from vid2sim.factory.evaluation.poses import evaluate, load_kitti_poses, load_posed_clip
+from vid2sim.factory.runtime.runner import run_stage
 
 pytestmark = pytest.mark.slow  # SfM + metric frame on 51 KITTI frames (minutes)
 
@@ -25,12 +26,12 @@ def test_kitti_registers_with_low_ate(tmp_path):
     data = shared_data_path("kitti_rural")
     conf = sfm.preset("fast", camera_model="PINHOLE", camera_params=kitti_intrinsics(data / "calib.txt"),
                       max_image_size=1241)
-    out = sfm.main(conf, data / "image_l", None, tmp_path / "sfm")
+    out = run_stage(sfm.work(conf, data / "image_l", None), tmp_path / "sfm")
     q = json.loads((out / "quality.json").read_text())
     assert q["registered_fraction"] >= 0.98
     assert q["mean_reproj_error_px"] < 1.0
     assert (out / "sparse" / "0" / "images.bin").exists() and (out / "transforms.json").exists()
-    posed = metric.main(metric.MetricConfig(capture_height_m=1.65), out, tmp_path / "metric")
+    posed = run_stage(metric.work(metric.MetricConfig(capture_height_m=1.65), out), tmp_path / "metric")
     report = evaluate(load_posed_clip(posed), load_kitti_poses(data / "poses.txt"))
     assert report["matched_fraction"] >= 0.98
     assert report["ate"]["rmse_pct_of_path"] <= 1.0

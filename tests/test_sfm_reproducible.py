@@ -15,6 +15,7 @@ import pytest
 from conftest import shared_data_path
 from test_sfm_kitti import kitti_intrinsics
 from vid2sim.factory.sfm import sfm
+from vid2sim.factory.runtime.runner import run_stage
 
 
 def model_fingerprint(sfm_dir: Path) -> dict:
@@ -41,7 +42,7 @@ def test_same_frames_give_the_same_model(tmp_path):
     conf = sfm.preset("fast", camera_model="PINHOLE", camera_params=kitti_intrinsics(data / "calib.txt"),
                       max_image_size=800, undistort=False)
     assert conf.deterministic and sfm.colmap_threads(conf) == 1
-    runs = [model_fingerprint(sfm.main(conf, frames, None, tmp_path / f"sfm{i}")) for i in range(2)]
+    runs = [model_fingerprint(run_stage(sfm.work(conf, frames, None), tmp_path / f"sfm{i}")) for i in range(2)]
     assert len(runs[0]["ids"]) >= 15 and len(runs[0]["points"]) > 200
     assert runs[0]["ids"] == runs[1]["ids"]
     for key in ("params", "centres", "points"):

@@ -15,6 +15,7 @@ import pytest
 
 from ingest_media import panning_frames
 from vid2sim.factory.ingest import decode, masks
+from vid2sim.factory.runtime.runner import run_stage
 from vid2sim.factory.runtime.stage_cache import MARKER, StageError, content_key, input_key, load_record, stage_key
 
 
@@ -28,8 +29,8 @@ def _frames_folder(tmp_path: Path, n: int = 12) -> Path:
 
 def _chain(tmp_path: Path, frames: Path, dconf: decode.DecodeConfig, mconf: masks.MasksConfig) -> dict[str, tuple]:
     """Run decode -> masks; return {stage: (marker key, marker mtime_ns)}."""
-    d = decode.main(dconf, frames, tmp_path / "decode")
-    m = masks.main(mconf, d, tmp_path / "masks")
+    d = run_stage(decode.work(dconf, frames), tmp_path / "decode")
+    m = run_stage(masks.work(mconf, d), tmp_path / "masks")
     return {name: (load_record(out).key, (out / MARKER).stat().st_mtime_ns) for name, out in
             (("decode", d), ("masks", m))}
 
@@ -67,7 +68,7 @@ def test_input_key_is_the_marker_key_or_the_content(tmp_path):
     assert input_key(frames) == k
     cv2.imwrite(str(frames / "000.png"), panning_frames(1, h=120, w=160, seed=5)[0])
     assert content_key(frames) != k  # image bytes count, not only names and sizes
-    d = decode.main(decode.DecodeConfig(workers=1, dup_flow_px=0.0), frames, tmp_path / "decode")
+    d = run_stage(decode.work(decode.DecodeConfig(workers=1, dup_flow_px=0.0), frames), tmp_path / "decode")
     assert input_key(d) == input_key(d / "images") == load_record(d).key
     with pytest.raises(StageError, match="missing_input"):
         input_key(tmp_path / "nowhere")

@@ -11,6 +11,7 @@ from vid2sim.factory.evaluation.geometry_metrics import chamfer_distance, grid_i
 from vid2sim.factory.geometry.walkable import WalkableConfig, WalkableError, walkable_map
 from vid2sim.formats.errors import BundleError
 from vid2sim.formats.walkable import WalkableGrid, load_walkable
+from vid2sim.factory.runtime.runner import run_stage
 
 
 def plane_points(x0, x1, y0, y1, step=0.05) -> np.ndarray:
@@ -98,8 +99,8 @@ def test_npz_round_trip_and_bad_files(tmp_path):
 def test_walkable_stage_rejects_unreadable_mesh(tmp_path):
     (tmp_path / "collision.ply").write_text("garbage")
     with pytest.raises(WalkableError) as e:
-        walkable.main(WalkableConfig(), plane_points(-1, 1, -1, 1), tmp_path / "collision.ply",
-                      PATH, tmp_path / "out")
+        run_stage(walkable.work(WalkableConfig(), plane_points(-1, 1, -1, 1), tmp_path / "collision.ply", PATH),
+                  tmp_path / "out")
     assert e.value.reason == "bad_collision_mesh" and not (tmp_path / "out").exists()
 
 

@@ -14,7 +14,8 @@ import pytest
 import trimesh
 
 from vid2sim.factory.evaluation.corridor import CorridorConfig
-from vid2sim.factory.geometry import meshing, walkable
+from vid2sim.factory.geometry import meshing
+from vid2sim.factory.runtime import runner
 from vid2sim.factory.ingest.clips import ClipSpec
 from vid2sim.factory.ingest.sources import Source
 from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
@@ -67,16 +68,16 @@ def _state(folder: Path) -> dict[str, tuple[int, int]]:
 
 @pytest.fixture
 def recorded(monkeypatch):
-    """Records the folder's files at the moment the marker is written (the walkable module's
-    `mark_done`)."""
+    """Records the folder's files at the moment the marker is written (the runner's `mark_done`,
+    the one writer of markers)."""
     at_marker: list[dict] = []
-    real = walkable.mark_done
+    real = runner.mark_done
 
     def mark_done(out_dir, *args, **kwargs):
         at_marker.append(_state(Path(out_dir)))
         return real(out_dir, *args, **kwargs)
 
-    monkeypatch.setattr(walkable, "mark_done", mark_done)
+    monkeypatch.setattr(runner, "mark_done", mark_done)
     return at_marker
 
 

@@ -32,7 +32,8 @@ def run(
 
     existing_sources([str(posed_dir)], "POSED_DIR")
     creatable_folder(str(out_dir), "OUT_DIR")
-    from vid2sim.factory.recon.trainer import main
+    from vid2sim.factory.recon.trainer import work
+    from vid2sim.factory.runtime.runner import run_stage
 
     conf = C.preset(preset)
     if iterations:
@@ -42,7 +43,7 @@ def run(
                                          checkpoint=checkpoint or conf.prior.checkpoint)
     if baseline:
         conf = C.baseline(conf)
-    out = main(conf, posed_dir, out_dir, gt_depth_dir=gt_depth)
+    out = run_stage(work(conf, posed_dir, gt_depth_dir=gt_depth), out_dir)
     metrics = json.loads((out / "metrics.json").read_text())
     metrics.pop("per_frame", None)
     if as_json:

@@ -40,6 +40,7 @@ def run(
     as_json: bool = typer.Option(False, "--json", help="Print quality.json."),
 ) -> None:
     """SIFT + sequential matching + global mapper (incremental fallback) with a quality gate."""
+    from vid2sim.factory.runtime.runner import run_stage
     from vid2sim.factory.sfm import sfm
 
     existing_sources([str(images)], "--images")
@@ -48,7 +49,7 @@ def run(
 
     conf = sfm.preset(preset, camera_model=camera_model, camera_params=_floats(camera_params),
                       lens=LensHint(wide=wide))
-    out_dir = sfm.main(conf, images, masks, out)
+    out_dir = run_stage(sfm.work(conf, images, masks), out)
     q = sfm.load_quality(out_dir)
     typer.echo(json.dumps(q, indent=2) if as_json else
                f"{out_dir}: {q['num_registered']}/{q['num_frames']} registered, "
@@ -63,12 +64,13 @@ def metric_cmd(
     gps_csv: str = typer.Option("", "--gps-csv", help="GoPro GPS5 CSV: scale from the walked distance."),
 ) -> None:
     """Ground plane -> z up, ground z = 0, metric scale; writes a PosedClip."""
+    from vid2sim.factory.runtime.runner import run_stage
     from vid2sim.factory.sfm import metric
 
     existing_sources([str(sfm_dir)], "--sfm")
     creatable_folder(str(out), "--out")
 
-    out_dir = metric.main(metric.MetricConfig(capture_height_m=height, gps_csv=gps_csv), sfm_dir, out)
+    out_dir = run_stage(metric.work(metric.MetricConfig(capture_height_m=height, gps_csv=gps_csv), sfm_dir), out)
     info = json.loads((out_dir / "frame.json").read_text())
     typer.echo(f"{out_dir}: scale from {info['scale_source']} ({info['scale']:.4f}), plane inliers "
                f"{info['plane_inliers']}, residual {info['plane_residual_rms_m']:.3f} m")

@@ -3,6 +3,7 @@
 Grouped by stage: ingest/, sfm/, recon/, geometry/, synthetic/, evaluation/, runtime/.
 
 Each stage is a module with a config dataclass, named presets, and
-`main(conf, inputs..., out_dir) -> Path`; finished outputs are marked with
+`work(conf, inputs...) -> StageWork` (the parts of its cache key and the work that fills its
+folder); `runtime/runner.run_stage(work, out_dir)` runs it and marks the finished folder with
 `stage.json` (see `runtime/stage_cache.py`) so re-runs skip work already done.
 """

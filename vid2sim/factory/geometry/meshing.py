@@ -9,7 +9,7 @@ splats, or ground truth), writes into `out_dir`:
                      removed (they lay in space proven empty, e.g. the walker's body): the
                      walkable stage drops the small mesh pieces they belonged to
   meshing.json       summary (face counts, timings, config)
-  stage.json         marker (vid2sim.factory.runtime.stage_cache)
+  stage.json         marker, written by the runner (vid2sim.factory.runtime.runner)
 
 Ground removal (choice: pixel masking as the paper, plus a face filter): a pixel is ground
 when its rendered normal, rotated to world, lies within `ground_normal_deg` (paper: delta =
@@ -48,7 +48,7 @@ from vid2sim.factory.geometry.carving import CarveConfig, free_space, keep_mask
 from vid2sim.factory.geometry.mesh_ops import remove_fragments, simplify, tidy
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
 from vid2sim.factory.geometry.visual_mesh import make_visual_mesh
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
@@ -499,25 +499,21 @@ def save_mesh(mesh: o3d.geometry.TriangleMesh, path: Path) -> None:
         raise MeshingError("write_failed", f"could not write {path}")
 
 
-def main(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path,
-         input_key: str = "", overwrite: bool = False) -> Path:
-    """Stage entry: fuse `views` into `out_dir` (skipped when already done for this key).
+def work(conf: MeshingConfig, views: Iterable[DepthView], input_key: str = "") -> StageWork:
+    """Fusing `views` into meshes: keyed by the config and `input_key`, which identifies the
+    views (e.g. the reconstruction stage key); views may be a lazy generator, only consumed when
+    the stage actually runs."""
+    return StageWork(STAGE, STAGE_VERSION, conf, (input_key,), lambda out_dir: build(conf, views, out_dir))
 
-    `input_key` identifies the views (e.g. the reconstruction stage key) for caching; views
-    may be a lazy generator, only consumed when the stage actually runs.
-    """
-    out_dir = Path(out_dir)
-    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
-    if not overwrite and is_done(out_dir, key):
-        return out_dir
-    with Timer() as t:
-        res = build_meshes(views, conf)
-    fresh_dir(out_dir)
+
+def build(conf: MeshingConfig, views: Iterable[DepthView], out_dir: Path) -> dict:
+    """Fuse `views` and write the meshes, points and meshing.json into the empty `out_dir`;
+    returns the summary."""
+    res = build_meshes(views, conf)
     save_mesh(res.collision, out_dir / OUTPUTS.collision)
     save_mesh(res.visual, out_dir / OUTPUTS.visual)
     np.save(out_dir / OUTPUTS.ground_points, res.ground_points.astype(np.float32))
     np.save(out_dir / OUTPUTS.carved_points, res.carved_points.astype(np.float32))
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": res.summary, "config": to_jsonable(conf)}, indent=2))
-    mark_done(out_dir, STAGE, key, res.summary, t.seconds)
-    return out_dir
+    return res.summary

@@ -3,7 +3,7 @@
 Stage `walkable`: reads ground points (meshing's ground_points.npy), the fused collision mesh
 and the camera path; writes `walkable.npz` (scene-bundle format: grid uint8 [H, W] 1 = walkable,
 origin float64 [2], resolution float64), the physical `collision.ply` the bundle ships, plus
-`walkable.json` and the stage marker.
+`walkable.json` (the runner adds the stage marker).
 
 Grid convention and the one reader: `vid2sim.formats.walkable` (WalkableGrid, load_walkable).
 
@@ -49,7 +49,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Optional
 
 import numpy as np
 from scipy import ndimage
@@ -63,7 +63,7 @@ from vid2sim.factory.geometry.map_evidence import MapEvidence, path_miss_causes
 from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M, walked_path
 from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.surface_sampling import points_by_spacing
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
 from vid2sim.versioning import to_jsonable
@@ -603,29 +603,27 @@ def load_points(path: Path, reason: str) -> np.ndarray:
     return pts
 
 
-def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
-         camera_path: np.ndarray, out_dir: Path, input_key: str = "",
-         overwrite: bool = False, carved_points: Optional[np.ndarray] = None,
-         before_marker: Optional[Callable[[Path], object]] = None) -> Path:
-    """Stage entry: write walkable.npz into out_dir (skipped when done for this key).
-    before_marker(out_dir) runs on the written outputs just before the marker, the last file
-    written (the pipeline's corridor report); what it writes is part of this stage's output, so
-    whatever decides it must be in `input_key`."""
+def work(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
+         camera_path: np.ndarray, input_key: str = "", carved_points: Optional[np.ndarray] = None) -> StageWork:
+    """The walkable map and physical collision mesh: keyed by the config and `input_key`, which
+    identifies the inputs (and whatever else decides the folder's files)."""
+    return StageWork(STAGE, STAGE_VERSION, conf, (input_key,), lambda out_dir: build(
+        conf, ground_points, collision_mesh_path, camera_path, out_dir, carved_points))
+
+
+def build(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: Path,
+          camera_path: np.ndarray, out_dir: Path, carved_points: Optional[np.ndarray] = None) -> dict:
+    """Write walkable.npz, the physical collision.ply and walkable.json into the empty
+    `out_dir`; returns the summary."""
     import trimesh
 
-    out_dir = Path(out_dir)
-    key = stage_key(STAGE, STAGE_VERSION, conf, input_key)
-    if not overwrite and is_done(out_dir, key):
-        return out_dir
     path = Path(collision_mesh_path)
     try:
         mesh = trimesh.load(path, force="mesh", process=False)
     except Exception as e:  # trimesh raises many types for unreadable files
         raise WalkableError("bad_collision_mesh", f"{path}: {e}") from e
-    with Timer() as t:
-        layer = physical_layer(ground_points, mesh, camera_path, conf, carved_points)
+    layer = physical_layer(ground_points, mesh, camera_path, conf, carved_points)
     wm = layer.walkable
-    fresh_dir(out_dir)
     wm.save(out_dir / OUTPUTS.grid)
     trimesh.Trimesh(layer.vertices, layer.faces, process=False).export(out_dir / OUTPUTS.collision)
     summary = dict(shape=list(wm.shape), origin=wm.origin.tolist(), resolution=wm.resolution,
@@ -635,7 +633,4 @@ def main(conf: WalkableConfig, ground_points: np.ndarray, collision_mesh_path: P
                        wm, layer.evidence, camera_path, conf.robot_radius_m).items()})
     (out_dir / OUTPUTS.summary).write_text(json.dumps(
         {"summary": summary, "config": to_jsonable(conf)}, indent=2))
-    if before_marker is not None:
-        before_marker(out_dir)
-    mark_done(out_dir, STAGE, key, summary, t.seconds)
-    return out_dir
+    return summary

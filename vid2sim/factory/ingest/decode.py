@@ -9,7 +9,7 @@ Writes into `out_dir`:
                      reason (null | black | blur | duplicate), faces, plates
   clip.json          source uri + sha256, window, source fps/size, sample fps, size,
                      counts, anonymiser (detectors and settings), config
-  stage.json         the done-marker (runtime/stage_cache.py)
+  stage.json         the done-marker, written by the runner (runtime/runner.py)
 
 Filters (defaults, see DecodeConfig):
   sampling   10 fps (the paper uses 30 fps x 15 s = 450 frames; 10 fps keeps 1/3 of the
@@ -40,7 +40,7 @@ import pyarrow.parquet as pq
 
 from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_video
 from vid2sim.versioning import to_jsonable
 
@@ -267,38 +267,37 @@ def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int
     return dict(zip(kept, counts))
 
 
-def main(conf: DecodeConfig, source: Union[Source, str, Path], out_dir: Path,
-         window: Optional[tuple[float, float]] = None) -> Path:
-    """Decode, filter, anonymise and write one clip; skip when done with the same key."""
-    out_dir = Path(out_dir)
+def work(conf: DecodeConfig, source: Union[Source, str, Path],
+         window: Optional[tuple[float, float]] = None) -> StageWork:
+    """Decoding one clip: keyed by the config (workers aside), the source's sha256 and the window."""
     src = source if isinstance(source, Source) else resolve_source(source)
     window = None if window is None else (float(window[0]), float(window[1]))
-    key = stage_key(STAGE, STAGE_VERSION, replace(conf, workers=1), src.sha256, list(window) if window else None)
-    if is_done(out_dir, key):
-        return out_dir
-    with Timer() as timer:
-        blurrer = Anonymiser(conf.faces, conf.plates)  # fails early (nothing written) without a detector
-        if src.kind == "video":
-            samples, facts = sample_video(src.path, conf, window)
-        else:
-            samples, facts = sample_images(src.images(), conf)
-        counts = filter_samples(samples, conf)
-        fresh_dir(out_dir)
-        found = _write(samples, conf, out_dir)
-        pq.write_table(_frames_table(samples, found), out_dir / OUTPUTS.frames)
-        kept = [s for s in samples if s.reason is None]
-        h, w = kept[0].image.shape[:2]
-        counts["faces_blurred"] = int(sum(f for f, _ in found.values()))
-        counts["frames_with_faces"] = int(sum(f > 0 for f, _ in found.values()))
-        counts["plates_blurred"] = int(sum(p for _, p in found.values()))
-        clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
-                "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
-                **facts, "counts": counts, **blurrer.record(), "config": to_jsonable(conf)}
-        (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
+    return StageWork(STAGE, STAGE_VERSION, replace(conf, workers=1), (src.sha256, list(window) if window else None),
+                     lambda out_dir: build(conf, src, window, out_dir))
+
+
+def build(conf: DecodeConfig, src: Source, window: Optional[tuple[float, float]], out_dir: Path) -> dict:
+    """Decode, filter, anonymise and write one clip into the empty `out_dir`; returns the summary."""
+    blurrer = Anonymiser(conf.faces, conf.plates)  # fails early (nothing written) without a detector
+    if src.kind == "video":
+        samples, facts = sample_video(src.path, conf, window)
+    else:
+        samples, facts = sample_images(src.images(), conf)
+    counts = filter_samples(samples, conf)
+    found = _write(samples, conf, out_dir)
+    pq.write_table(_frames_table(samples, found), out_dir / OUTPUTS.frames)
+    kept = [s for s in samples if s.reason is None]
+    h, w = kept[0].image.shape[:2]
+    counts["faces_blurred"] = int(sum(f for f, _ in found.values()))
+    counts["frames_with_faces"] = int(sum(f > 0 for f, _ in found.values()))
+    counts["plates_blurred"] = int(sum(p for _, p in found.values()))
+    clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
+            "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
+            **facts, "counts": counts, **blurrer.record(), "config": to_jsonable(conf)}
+    (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
     summary = {k: counts[k] for k in ("sampled", "kept", "dropped_black", "dropped_blur", "dropped_duplicate",
                                       "faces_blurred", "plates_blurred")}
-    mark_done(out_dir, STAGE, key, {**summary, "size": [w, h]}, timer.seconds)
-    return out_dir
+    return {**summary, "size": [w, h]}
 
 
 def kept_images(out_dir: Path) -> list[Path]:

@@ -7,7 +7,7 @@ Writes into `out_dir`:
                           `000001.jpg` is `000001.jpg.png`)
   masks.parquet           per frame: image, dynamic_fraction, model (F | H), components,
                           people_boxes, segments, reliable
-  stage.json              done-marker with a summary
+  stage.json              done-marker with a summary, written by the runner (runtime/runner.py)
 
 Method (per frame t, on a grey copy `analysis_width` wide):
  1. dense DIS optical flow to t-1 and t+1 and back (forward-backward check: flow that does
@@ -39,7 +39,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from vid2sim.factory.ingest.decode import kept_images
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
 
 STAGE = "masks"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
@@ -296,9 +296,10 @@ def load_segmenter(conf: MasksConfig) -> Optional[Segmenter]:
     return TorchScriptSegmenter(conf.segmenter_path, conf.segmenter_classes) if conf.segmenter_path else None
 
 
-def main(conf: MasksConfig, decode_dir: Path, out_dir: Path, segmenter: Optional[Segmenter] = None) -> Path:
-    """Write `masks/<image>.png` for every frame of a finished decode output."""
-    decode_dir, out_dir = Path(decode_dir), Path(out_dir)
+def work(conf: MasksConfig, decode_dir: Path, segmenter: Optional[Segmenter] = None) -> StageWork:
+    """Masks of every frame of a finished decode output: keyed by the config, the decode key
+    and the segmenter."""
+    decode_dir = Path(decode_dir)
     rec = load_record(decode_dir)
     if rec is None:
         raise StageError(STAGE, "missing_input", f"{decode_dir}: no finished decode output (stage.json)")
@@ -306,23 +307,24 @@ def main(conf: MasksConfig, decode_dir: Path, out_dir: Path, segmenter: Optional
     if len(files) < 2:
         raise StageError(STAGE, "too_few_frames", f"{decode_dir}: {len(files)} images")
     seg_id = conf.segmenter_path or (type(segmenter).__name__ if segmenter is not None else None)
-    key = stage_key(STAGE, STAGE_VERSION, conf, rec.key, seg_id)
-    if is_done(out_dir, key):
-        return out_dir
-    with Timer() as timer:
-        segmenter = segmenter or load_segmenter(conf)
-        images = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in files]
-        masks, facts = compute_masks(images, conf, segmenter)
-        fresh_dir(out_dir)
-        (out_dir / OUTPUTS.masks).mkdir()
-        for p, m in zip(files, masks):
-            cv2.imwrite(str(out_dir / OUTPUTS.masks / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
-        table = pa.Table.from_pylist([{"image": p.name, **f} for p, f in zip(files, facts)])
-        pq.write_table(table, out_dir / "masks.parquet")
+    return StageWork(STAGE, STAGE_VERSION, conf, (rec.key, seg_id),
+                     lambda out_dir: build(conf, files, out_dir, segmenter, seg_id))
+
+
+def build(conf: MasksConfig, files: list[Path], out_dir: Path, segmenter: Optional[Segmenter],
+          seg_id: Optional[str]) -> dict:
+    """Write `masks/<image>.png` and `masks.parquet` for `files` into the empty `out_dir`;
+    returns the summary."""
+    segmenter = segmenter or load_segmenter(conf)
+    images = [cv2.imread(str(p), cv2.IMREAD_COLOR) for p in files]
+    masks, facts = compute_masks(images, conf, segmenter)
+    (out_dir / OUTPUTS.masks).mkdir()
+    for p, m in zip(files, masks):
+        cv2.imwrite(str(out_dir / OUTPUTS.masks / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
+    table = pa.Table.from_pylist([{"image": p.name, **f} for p, f in zip(files, facts)])
+    pq.write_table(table, out_dir / "masks.parquet")
     frac = np.array([f["dynamic_fraction"] for f in facts])
-    summary = {"frames": len(files), "mean_dynamic": float(frac.mean()), "max_dynamic": float(frac.max()),
-               "frames_with_dynamic": int((frac > 0).sum()),
-               "unreliable": int(sum(not f["reliable"] for f in facts)),
-               "people_detector": "hog" if _people_detector(conf) else "off", "segmenter": seg_id}
-    mark_done(out_dir, STAGE, key, summary, timer.seconds)
-    return out_dir
+    return {"frames": len(files), "mean_dynamic": float(frac.mean()), "max_dynamic": float(frac.max()),
+            "frames_with_dynamic": int((frac > 0).sum()),
+            "unreliable": int(sum(not f["reliable"] for f in facts)),
+            "people_detector": "hog" if _people_detector(conf) else "off", "segmenter": seg_id}

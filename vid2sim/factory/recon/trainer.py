@@ -1,10 +1,10 @@
 """Stage `recon`: geometry-consistent Gaussian-splat training of one PosedClip.
 
-main(conf, posed_clip_dir, out_dir) -> out_dir
+work(conf, posed_clip_dir) -> StageWork, run by `runtime/runner.run_stage(work, out_dir)`.
 Reads:  a PosedClip folder (cameras.parquet, points.npz, frame.json, images, masks).
 Writes: out_dir/splats.ply (3DGS PLY), metrics.json (held-out PSNR/SSIM[/LPIPS], depth and
         normal error when GT depth is known, counts, time), config.json (the ReconConfig),
-        prior.npz (cached depth prior), checkpoint.pt (resume), stage.json (done marker).
+        prior.npz (cached depth prior), checkpoint.pt (resume); the runner adds stage.json.
 A re-run with the same config and inputs is skipped; a killed run resumes from checkpoint.pt.
 """
 
@@ -29,7 +29,7 @@ from vid2sim.factory.recon.densify import DensifyStats, densify_and_prune, prune
 from vid2sim.factory.recon.depth_prior import DepthPrior, estimate_priors
 from vid2sim.factory.recon.evaluate import evaluate_views, load_gt_depths
 from vid2sim.factory.recon.params import SplatParams
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, input_key, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer, input_key, stage_key
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply
@@ -289,19 +289,25 @@ def _write_json(path: Path, data: dict) -> None:
     os.replace(tmp, path)
 
 
-def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
-         gt_depth_dir: Optional[Path] = None) -> Path:
-    """Train splats for the PosedClip at `posed_clip_dir` into `out_dir` (see module doc).
+def work(conf: ReconConfig, posed_clip_dir: Path, gt_depth_dir: Optional[Path] = None) -> StageWork:
+    """Training splats for the PosedClip at `posed_clip_dir`: keyed by the config and the clip's
+    key; a checkpoint of the same key in the folder is resumed.
 
     gt_depth_dir: optional folder of ground-truth depth maps (`<image stem>.png` uint16 mm or
     `.npy` metres); defaults to the clip's frame_info["gt_depth_dir"] when present.
     """
-    posed_clip_dir, out_dir = Path(posed_clip_dir), Path(out_dir)
-    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(check_posed_dir(posed_clip_dir)))
-    if is_done(out_dir, key):
-        return out_dir
-    if load_checkpoint(out_dir / CHECKPOINT, key) is None:
-        fresh_dir(out_dir)
+    posed_clip_dir = check_posed_dir(posed_clip_dir)
+    clip_key = input_key(posed_clip_dir)
+    key = stage_key(STAGE, STAGE_VERSION, conf, clip_key)  # a checkpoint belongs to this key
+    return StageWork(STAGE, STAGE_VERSION, conf, (clip_key,),
+                     build=lambda out_dir: build(conf, posed_clip_dir, out_dir, key, gt_depth_dir),
+                     resume=lambda out_dir: load_checkpoint(out_dir / CHECKPOINT, key) is not None)
+
+
+def build(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path, key: str,
+          gt_depth_dir: Optional[Path] = None) -> dict:
+    """Train splats into `out_dir` (empty, or holding a checkpoint of `key`; see module doc);
+    returns the summary (metrics.json's scalars)."""
     conf.save(out_dir / "config.json")
     clip = PosedClip.load(posed_clip_dir)
     cpu = {"start": time.process_time()}  # process CPU seconds (every thread): wall time on a shared machine misleads
@@ -328,9 +334,7 @@ def main(conf: ReconConfig, posed_clip_dir: Path, out_dir: Path,
     _write_json(out_dir / OUTPUTS.metrics, metrics)
     _write_json(out_dir / "train_log.json", {"log": summary["log"]})
     (out_dir / CHECKPOINT).unlink(missing_ok=True)
-    mark_done(out_dir, STAGE, key, {k: v for k, v in metrics.items() if not isinstance(v, (list, dict))},
-              timer.seconds)
-    return out_dir
+    return {k: v for k, v in metrics.items() if not isinstance(v, (list, dict))}
 
 
 def _coverage(priors: dict[int, DepthPrior]) -> Optional[float]:

@@ -1,4 +1,11 @@
-"""The one runner of factory steps, for a local work folder and a work store alike.
+"""The one runner of factory steps, for a local work folder and a work store alike, and the
+only code that checks or writes a stage marker (`stage.json`).
+
+`run_stage(work, out_dir)` runs one stage into a folder: it computes the cache key from the
+stage's version, config and input keys (`stage_cache.stage_key`), skips the work when the
+folder's marker holds that key, otherwise empties the folder (keeping a partial run the stage
+resumes), runs the stage's work and writes the marker last. The CLI, tests and benchmarks call
+it directly with a stage's `StageWork` (e.g. `run_stage(sfm.work(conf, images, masks), out)`).
 
 `run_step(step, work)` runs one step of one clip:
 1. on a work store (object-store URI): the clip's finished folders that the step may read
@@ -6,8 +13,8 @@
    the clip folder (`staging.py`), and a URI source is fetched by this node;
 2. threads are limited to the task's CPUs;
 3. the step's `Inputs` record is built from the `Outputs` of the steps done so far;
-4. `main` runs (it skips work whose marker holds the same key); its folder must then hold
-   the step's marker;
+4. the step's work runs through `run_stage`, then its check (a verdict that writes nothing,
+   also on a cached folder);
 5. on a work store the step's folder is uploaded, marker last.
 It returns the clip's work record with the step's `Outputs` added, the folder relative to the
 clip folder, so the record is valid on every node.
@@ -21,7 +28,8 @@ from typing import Mapping
 
 from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
 from vid2sim.factory.runtime.object_store import ObjectStore, is_remote
-from vid2sim.factory.runtime.stage_cache import StageError, load_record
+from vid2sim.factory.runtime.stage_cache import (MARKER, StageError, StageWork, Timer, fresh_dir, is_done,
+                                                 mark_done, stage_key)
 from vid2sim.factory.runtime.staging import fetch_from_store, local_clip_dir, localize_source, sync_down, sync_up
 from vid2sim.factory.runtime.steps.base import CLIP, Step, StepOutputs
 from vid2sim.factory.runtime.threads import limit_threads
@@ -58,6 +66,32 @@ def clip_work(job: ClipJob, conf: PipelineConfig, workdir: str | Path, cpus: flo
     return ClipWork(job, conf, where, cpus, outputs)
 
 
+def cache_key(work: StageWork) -> str:
+    """The stage run's cache key: its name, version, config and input keys."""
+    return stage_key(work.stage, work.version, work.conf, *work.input_keys)
+
+
+def run_stage(work: StageWork, out_dir: Path) -> Path:
+    """Run one stage into `out_dir` unless its marker holds the run's key; the marker is
+    written last, after the work returned (see module doc)."""
+    out_dir, key = Path(out_dir), cache_key(work)
+    if is_done(out_dir, key):
+        return out_dir
+    if out_dir.is_dir() and work.resume(out_dir):
+        (out_dir / MARKER).unlink(missing_ok=True)
+    else:
+        fresh_dir(out_dir)
+    try:
+        with Timer() as t:
+            summary = work.build(out_dir)
+    except BaseException:
+        if not any(out_dir.iterdir()):  # a run that failed before writing leaves no folder
+            out_dir.rmdir()
+        raise
+    mark_done(out_dir, work.stage, key, summary, t.seconds)
+    return out_dir
+
+
 def run_step(step: Step, work: ClipWork) -> ClipWork:
     """Run `step` on the clip (see module doc); returns the record with its outputs added."""
     if work.on_store:
@@ -76,10 +110,12 @@ def _inputs(step: Step, work: ClipWork, clip_dir: Path) -> object:
 
 def _run(step: Step, work: ClipWork, clip_dir: Path) -> StepOutputs:
     limit_threads(work.cpus)
-    out = step.main(step.configure(work.conf, work.job), _inputs(step, work, clip_dir), clip_dir / step.name)
-    rec = load_record(out.dir)
-    if rec is None or rec.stage != step.name:
-        raise StageError(step.name, "no_marker", f"{out.dir}: the step returned without marking its folder done")
+    conf = step.configure(work.conf, work.job)
+    todo = step.work(conf, _inputs(step, work, clip_dir))
+    if todo.stage != step.name:
+        raise StageError(step.name, "wrong_stage", f"the step's work is stage {todo.stage!r}")
+    out = step.outputs(run_stage(todo, clip_dir / step.name))
+    step.check(conf, out)
     return out.relative_to(clip_dir)
 
 

@@ -1,8 +1,10 @@
 """Stage convention: resumable, cached outputs under ONE cache rule.
 
-A stage writes into its own folder and, when finished, an atomic `stage.json`
-marker holding the stage name, the cache key and a summary. A folder without
-the marker (a stage killed mid-way) is treated as not done and redone.
+A stage writes into its own folder; when it is finished, the runner (`runtime/runner.py`
+`run_stage`, the only code that checks or writes a marker) adds an atomic `stage.json` marker
+holding the stage name, the cache key and a summary, the last file of the folder. A folder
+without the marker (a stage killed mid-way) is treated as not done and redone. A stage itself
+only says what its run is (`StageWork`: the parts of its key and the work that fills the folder).
 
 The cache rule (`stage_key`): key = hash(stage name, STAGE_VERSION, config, input keys).
 Each stage module declares `STAGE_VERSION` and bumps it when its logic changes, so a re-run
@@ -21,7 +23,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
 from vid2sim.versioning import code_version, config_hash, to_jsonable
 
@@ -45,6 +47,25 @@ class StageRecord:
     summary: dict
     seconds: float
     code_version: str
+
+
+def _no_partial_run(out_dir: Path) -> bool:
+    return False
+
+
+@dataclass(frozen=True)
+class StageWork:
+    """One run of a stage, before it runs: the parts of its cache key (`stage_key(stage, version,
+    conf, *input_keys)`) and `build(out_dir)`, which fills the empty folder and returns the
+    summary its marker records. `resume(out_dir)`: the folder holds a partial run of this very
+    key that `build` continues (the runner then keeps it)."""
+
+    stage: str
+    version: int
+    conf: Any
+    input_keys: tuple[Any, ...]
+    build: Callable[[Path], dict]
+    resume: Callable[[Path], bool] = _no_partial_run
 
 
 def stage_key(stage: str, version: int, conf: Any, *input_keys: Any) -> str:

@@ -7,7 +7,7 @@ Writes into `out_dir`:
                                             the metric world, split = every 8th frame "test"
   sparse/                                   the undistorted COLMAP model moved into that world
   transforms.json                           nerfstudio export in that world
-  stage.json                                marker
+  stage.json                                marker (written by the runner, runtime/runner.py)
 World: RANSAC plane through SfM points below the cameras (seen in the lower image part, on
 static mask pixels, below the camera along the cameras' mean "up" = -y axis), normal oriented
 towards the cameras = +z; x = walking direction on the ground; origin below the first camera.
@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, is_done, load_record, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
 
 STAGE = "metric"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
@@ -373,32 +373,34 @@ def posed_clip(conf: MetricConfig, rec: Any, images: Path, masks: Optional[Path]
     return PosedClip(frames, images, masks, xyz, rgb, info)
 
 
-def main(conf: MetricConfig, sfm_dir: Path, out_dir: Path, frames_dir: Optional[Path] = None) -> Path:
-    """Align an SfM output to the metric gravity frame and save a PosedClip in `out_dir`.
+def work(conf: MetricConfig, sfm_dir: Path, frames_dir: Optional[Path] = None) -> StageWork:
+    """Aligning a finished SfM output to the metric gravity frame: keyed by the config and the
+    sfm key.
 
     frames_dir: the SfM input frames (decode's `images/`, with `frames.parquet` beside it) for
     frame indices and timestamps; the pipeline passes it. Left out (a standalone SfM folder), the
     folder recorded in the sfm `quality.json` is used.
     """
-    sfm_dir, out_dir = Path(sfm_dir), Path(out_dir)
+    sfm_dir = Path(sfm_dir)
     rec_in = load_record(sfm_dir)
     if rec_in is None:
         raise StageError(STAGE, "missing_input", f"{sfm_dir} is not a finished sfm output")
-    key = stage_key(STAGE, STAGE_VERSION, conf, rec_in.key)
-    if is_done(out_dir, key):
-        return out_dir
-    with Timer() as timer:
-        rec, images, masks, quality = load_sfm(sfm_dir)
-        s, R, t, facts = align(conf, rec, masks)
-        fresh_dir(out_dir)
-        apply_sim3(rec, s, R, t)
-        clip = posed_clip(conf, rec, images, masks, str(frames_dir or quality.get("images_dir", "")), facts)
-        clip.save(out_dir)
-        write_colmap(rec, out_dir / OUTPUTS.colmap)
-        mask_names = {p.name[:-4] for p in masks.glob("*.png")} if masks else None
-        write_transforms(rec, out_dir / "transforms.json", str(images.resolve()),
-                         str(masks.resolve()) if masks else None, mask_names)
+    return StageWork(STAGE, STAGE_VERSION, conf, (rec_in.key,),
+                     lambda out_dir: build(conf, sfm_dir, out_dir, frames_dir))
+
+
+def build(conf: MetricConfig, sfm_dir: Path, out_dir: Path, frames_dir: Optional[Path] = None) -> dict:
+    """Save the aligned PosedClip, `sparse/` and `transforms.json` in the empty `out_dir`;
+    returns the summary."""
+    rec, images, masks, quality = load_sfm(sfm_dir)
+    s, R, t, facts = align(conf, rec, masks)
+    apply_sim3(rec, s, R, t)
+    clip = posed_clip(conf, rec, images, masks, str(frames_dir or quality.get("images_dir", "")), facts)
+    clip.save(out_dir)
+    write_colmap(rec, out_dir / OUTPUTS.colmap)
+    mask_names = {p.name[:-4] for p in masks.glob("*.png")} if masks else None
+    write_transforms(rec, out_dir / "transforms.json", str(images.resolve()),
+                     str(masks.resolve()) if masks else None, mask_names)
     summary = {k: facts[k] for k in ("scale_source", "scale", "plane_inliers",
                                      "plane_residual_rms_m", "gravity_prior_angle_deg")}
-    mark_done(out_dir, STAGE, key, {**summary, "frames": len(clip.frames)}, timer.seconds)
-    return out_dir
+    return {**summary, "frames": len(clip.frames)}

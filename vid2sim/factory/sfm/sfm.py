@@ -9,7 +9,7 @@ Writes into `out_dir`:
   transforms.json             nerfstudio export of the undistorted model
   quality.json                registered fraction, reprojection error, track length, parallax,
                               timings (also written, with `failed`, when the quality gate fails)
-  stage.json                  marker, only on success.
+  stage.json                  marker, only on success (written by the runner, runtime/runner.py).
 Quality gate (StageError reasons): `too_few_frames`, `static_camera`, `too_few_registered`.
 Loop detection needs a vocabulary-tree file (`vocab_tree_path`); none ships offline, so without
 one the presets use quadratic sequential overlap (frames i +- 1, 2, 4, ... 2^k) instead.
@@ -30,7 +30,7 @@ import numpy as np
 
 from vid2sim.factory.sfm.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
 from vid2sim.factory.sfm.export import write_colmap, write_transforms
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, fresh_dir, input_key, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer, fresh_dir, input_key
 from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
@@ -384,14 +384,17 @@ def write_outputs(out_dir: Path, images_dir: Path, masks: Optional[Path], rec: A
 
 # ----------------------------------------------------------------------------- stage
 
-def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: Path) -> Path:
-    """Run SfM on an ordered frame folder; returns `out_dir` (see module doc for contents)."""
-    images_dir, out_dir = Path(images_dir), Path(out_dir)
+def work(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path]) -> StageWork:
+    """SfM on an ordered frame folder: keyed by the config and the keys of the frames and masks."""
+    images_dir = Path(images_dir)
     names = list_images(images_dir)
-    key = stage_key(STAGE, STAGE_VERSION, conf, input_key(images_dir), input_key(masks_dir) if masks_dir else None)
-    if is_done(out_dir, key):
-        return out_dir
-    fresh_dir(out_dir)
+    keys = (input_key(images_dir), input_key(masks_dir) if masks_dir else None)
+    return StageWork(STAGE, STAGE_VERSION, conf, keys,
+                     lambda out_dir: build(conf, images_dir, names, masks_dir, out_dir))
+
+
+def build(conf: SfMConfig, images_dir: Path, names: list[str], masks_dir: Optional[Path], out_dir: Path) -> dict:
+    """Run SfM into the empty `out_dir` (see module doc for contents); returns quality.json's record."""
     q = SfMQuality(num_frames=len(names), images_dir=os.path.relpath(images_dir.resolve(), out_dir.resolve()))
     if len(names) < conf.min_frames:
         raise fail(out_dir, q, "too_few_frames",
@@ -422,8 +425,7 @@ def main(conf: SfMConfig, images_dir: Path, masks_dir: Optional[Path], out_dir: 
     shutil.rmtree(out_dir / "mapping", ignore_errors=True)
     q.seconds["export"] = t.seconds
     (out_dir / OUTPUTS.quality).write_text(json.dumps(to_jsonable(q), indent=2))
-    mark_done(out_dir, STAGE, key, to_jsonable(q), sum(q.seconds.values()))
-    return out_dir
+    return to_jsonable(q)
 
 
 def check_quality(conf: SfMConfig, out_dir: Path, q: SfMQuality) -> None:

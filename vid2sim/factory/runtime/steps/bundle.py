@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from vid2sim.factory.runtime.config import ClipJob, PipelineConfig
-from vid2sim.factory.runtime.stage_cache import StageError, Timer, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.runtime.steps import meshing, metric, recon, sfm, walkable
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.factory.sfm.posed import PosedClip
@@ -69,12 +69,21 @@ def configure(conf: PipelineConfig, job: ClipJob) -> Config:
     return Config(job, conf)
 
 
-def main(conf: Config, inputs: Inputs, out_dir: Path) -> Outputs:
+def work(conf: Config, inputs: Inputs) -> StageWork:
+    """Keyed by the scene id, licence and tags and the keys of metric, recon, meshing, walkable."""
+    job = conf.job
+    return StageWork(NAME, VERSION, {"scene_id": job.scene_id, "licence": job.licence, "tags": job.spec.tags},
+                     tuple(i.key for i in (inputs.metric, inputs.recon, inputs.meshing, inputs.walkable)),
+                     lambda out_dir: build(conf, inputs, out_dir))
+
+
+def build(conf: Config, inputs: Inputs, out_dir: Path) -> dict:
     """Assemble and validate the bundle; an invalid one is a verdict on the clip (StageError)."""
     try:
-        return _assemble(conf, inputs, Outputs(Path(out_dir)))
+        _assemble(conf, inputs, Outputs(Path(out_dir)))
     except BundleError as e:  # the clip's outputs do not make a valid bundle: a verdict, not a bug
         raise StageError(NAME, "invalid_bundle", str(e)) from e
+    return {"scene_id": conf.job.scene_id}
 
 
 def tag(key: str, value: object) -> str:
@@ -127,32 +136,25 @@ def _metrics(inputs: Inputs) -> dict:
             "corridor": _read_json(inputs.walkable.corridor)}
 
 
-def _assemble(conf: Config, inputs: Inputs, out: Outputs) -> Outputs:
+def _assemble(conf: Config, inputs: Inputs, out: Outputs) -> None:
     job = conf.job
-    key = stage_key(NAME, VERSION, {"scene_id": job.scene_id, "licence": job.licence, "tags": job.spec.tags},
-                    *(i.key for i in (inputs.metric, inputs.recon, inputs.meshing, inputs.walkable)))
-    if is_done(out.dir, key):
-        return out
-    with Timer() as t:
-        clip = inputs.metric.clip()
-        walk = load_walkable(inputs.walkable.grid)
-        spec = job.spec
-        start, end = spec.window if spec.window else (0.0, float(max(f.timestamp for f in clip.frames)))
-        scene = make_scene_json(
-            job.scene_id, source_uri=spec.source.uri, source_sha256=spec.source.sha256,
-            clip_start_s=start, clip_end_s=end, group=spec.group,
-            scale_source=str(clip.frame_info.get("scale_source", "capture_height")),
-            metrics=_scalars(_metrics(inputs)), config=conf.pipeline, robot=ROBOT,
-            tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
-        with tempfile.TemporaryDirectory() as tmp:
-            preview = render_preview(inputs.recon.splats, clip, walk.grid, Path(tmp) / "p.png")
-            extras = {"visual_mesh.ply": inputs.meshing.visual}
-            if inputs.metric.colmap.is_dir():
-                extras["colmap"] = inputs.metric.colmap
-            write_bundle(out.scene, scene_json=scene, splats_ply=inputs.recon.splats,
-                         collision_ply=inputs.walkable.collision,  # the physical layer
-                         walkable=walk,
-                         cameras=clip.cameras_table(), preview_png=preview, extras=extras,
-                         overwrite=True)
-    mark_done(out.dir, NAME, key, {"scene_id": job.scene_id}, t.seconds)
-    return out
+    clip = inputs.metric.clip()
+    walk = load_walkable(inputs.walkable.grid)
+    spec = job.spec
+    start, end = spec.window if spec.window else (0.0, float(max(f.timestamp for f in clip.frames)))
+    scene = make_scene_json(
+        job.scene_id, source_uri=spec.source.uri, source_sha256=spec.source.sha256,
+        clip_start_s=start, clip_end_s=end, group=spec.group,
+        scale_source=str(clip.frame_info.get("scale_source", "capture_height")),
+        metrics=_scalars(_metrics(inputs)), config=conf.pipeline, robot=ROBOT,
+        tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
+    with tempfile.TemporaryDirectory() as tmp:
+        preview = render_preview(inputs.recon.splats, clip, walk.grid, Path(tmp) / "p.png")
+        extras = {"visual_mesh.ply": inputs.meshing.visual}
+        if inputs.metric.colmap.is_dir():
+            extras["colmap"] = inputs.metric.colmap
+        write_bundle(out.scene, scene_json=scene, splats_ply=inputs.recon.splats,
+                     collision_ply=inputs.walkable.collision,  # the physical layer
+                     walkable=walk,
+                     cameras=clip.cameras_table(), preview_png=preview, extras=extras,
+                     overwrite=True)

@@ -12,6 +12,7 @@ from pathlib import Path
 from vid2sim.factory.ingest import decode as stage
 from vid2sim.factory.ingest.clips import ClipSpec
 from vid2sim.factory.ingest.decode import DecodeConfig
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.factory.runtime.threads import assigned_threads
 
@@ -39,7 +40,7 @@ def configure(conf, job) -> DecodeConfig:
     return conf.decode
 
 
-def main(conf: DecodeConfig, inputs: Inputs, out_dir: Path) -> Outputs:
+def work(conf: DecodeConfig, inputs: Inputs) -> StageWork:
     """Decode the clip's window of its source with the task's threads as workers."""
     clip = inputs.clip
-    return Outputs(stage.main(replace(conf, workers=assigned_threads()), clip.source, out_dir, clip.window))
+    return stage.work(replace(conf, workers=assigned_threads()), clip.source, clip.window)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from vid2sim.factory.ingest import masks as stage
 from vid2sim.factory.ingest.masks import MasksConfig
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import decode
 from vid2sim.factory.runtime.steps.base import StepOutputs
 
@@ -34,5 +35,5 @@ def configure(conf, job) -> MasksConfig:
     return conf.masks
 
 
-def main(conf: MasksConfig, inputs: Inputs, out_dir: Path) -> Outputs:
-    return Outputs(stage.main(conf, inputs.decode.dir, out_dir))
+def work(conf: MasksConfig, inputs: Inputs) -> StageWork:
+    return stage.work(conf, inputs.decode.dir)

@@ -9,10 +9,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Iterator
 
 from vid2sim.factory.geometry import meshing as stage
-from vid2sim.factory.geometry.meshing import MeshingConfig
+from vid2sim.factory.geometry.meshing import DepthView, MeshingConfig
 from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import metric, recon
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.splats.ply import read_ply
@@ -61,8 +63,11 @@ def configure(conf, job) -> Config:
     return Config(conf.views, conf.meshing)
 
 
-def main(conf: Config, inputs: Inputs, out_dir: Path) -> Outputs:
-    """Views are rendered lazily: only when the stage is not cached for this key."""
-    views_key = config_hash(inputs.recon.key, conf.views)
-    views = render_views(read_ply(inputs.recon.splats), inputs.metric.clip(), conf.views)
-    return Outputs(stage.main(conf.meshing, views, out_dir, input_key=views_key))
+def work(conf: Config, inputs: Inputs) -> StageWork:
+    """Keyed by the meshing config and the views (the recon key and the view config)."""
+    return stage.work(conf.meshing, _views(conf.views, inputs), input_key=config_hash(inputs.recon.key, conf.views))
+
+
+def _views(conf: SplatViewConfig, inputs: Inputs) -> Iterator[DepthView]:
+    """The splat depth views, rendered lazily: only when the stage is not cached for its key."""
+    yield from render_views(read_ply(inputs.recon.splats), inputs.metric.clip(), conf)

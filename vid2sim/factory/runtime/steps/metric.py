@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import decode, sfm
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.factory.sfm import metric as stage
@@ -42,5 +43,5 @@ def configure(conf, job) -> MetricConfig:
     return replace(conf.resolved().metric, capture_height_m=job.spec.capture_height)
 
 
-def main(conf: MetricConfig, inputs: Inputs, out_dir: Path) -> Outputs:
-    return Outputs(stage.main(conf, inputs.sfm.dir, out_dir, inputs.decode.images))
+def work(conf: MetricConfig, inputs: Inputs) -> StageWork:
+    return stage.work(conf, inputs.sfm.dir, inputs.decode.images)

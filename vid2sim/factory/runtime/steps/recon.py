@@ -12,6 +12,7 @@ from pathlib import Path
 
 from vid2sim.factory.recon import data, trainer
 from vid2sim.factory.recon.config import ReconConfig
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import metric
 from vid2sim.factory.runtime.steps.base import StepOutputs
 
@@ -39,5 +40,5 @@ def configure(conf, job) -> ReconConfig:
     return conf.recon
 
 
-def main(conf: ReconConfig, inputs: Inputs, out_dir: Path) -> Outputs:
-    return Outputs(trainer.main(conf, inputs.metric.dir, out_dir))
+def work(conf: ReconConfig, inputs: Inputs) -> StageWork:
+    return trainer.work(conf, inputs.metric.dir)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import decode, masks
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.factory.sfm import sfm as stage
@@ -35,5 +36,5 @@ def configure(conf, job) -> SfMConfig:
     return conf.resolved().sfm
 
 
-def main(conf: SfMConfig, inputs: Inputs, out_dir: Path) -> Outputs:
-    return Outputs(stage.main(conf, inputs.decode.images, inputs.masks.masks, out_dir))
+def work(conf: SfMConfig, inputs: Inputs) -> StageWork:
+    return stage.work(conf, inputs.decode.images, inputs.masks.masks)

@@ -3,8 +3,9 @@
 Reads: meshing/ (`ground_points.npy`, `carved_points.npy`, `collision.ply`), metric/ (the
 camera path).
 Writes (walkable/): `walkable.npz`, the shipped `collision.ply` (agrees with the map),
-`walkable.json`, `corridor.json` (the corridor report, written before the marker). Then the
-corridor gate reads the report and may fail the clip; it writes nothing.
+`walkable.json`, `corridor.json` (the corridor report, part of the work, so before the marker).
+Then the step's check, the corridor gate, reads the report and may fail the clip, also on a
+cached folder; it writes nothing.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import trimesh
 from vid2sim.factory.evaluation.corridor import CorridorConfig, corridor_check, gate_reasons
 from vid2sim.factory.geometry import walkable as stage
 from vid2sim.factory.geometry.walkable import WalkableConfig
-from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.runtime.steps import meshing, metric
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.formats.walkable import load_walkable
@@ -65,19 +66,27 @@ def configure(conf, job) -> Config:
     return Config(conf.walkable, conf.corridor)
 
 
-def main(conf: Config, inputs: Inputs, out_dir: Path) -> Outputs:
-    """The physical layer and its corridor report (before the marker), then the gate."""
+def work(conf: Config, inputs: Inputs) -> StageWork:
+    """The physical layer and its corridor report; keyed by the walkable config, the meshing and
+    metric keys and the corridor config (it decides corridor.json, a file of this step)."""
+    key = config_hash(inputs.meshing.key, inputs.metric.key, conf.corridor)
+    return StageWork(NAME, stage.STAGE_VERSION, conf.walkable, (key,), lambda out_dir: build(conf, inputs, out_dir))
+
+
+def build(conf: Config, inputs: Inputs, out_dir: Path) -> dict:
+    """walkable.npz, collision.ply, walkable.json, then corridor.json; returns the summary."""
     mesh = inputs.meshing
     path = np.array([f.cam_to_world[:3, 3] for f in inputs.metric.clip().frames])  # [T, 3]
     ground = stage.load_points(mesh.ground_points, "bad_ground_points")
     carved = stage.load_points(mesh.carved_points, "bad_carved_points") if mesh.carved_points.is_file() else None
-    # the corridor config decides corridor.json, a file of this stage: it is part of the key
-    key = config_hash(mesh.key, inputs.metric.key, conf.corridor)
-    out = Outputs(stage.main(conf.walkable, ground, mesh.collision, path, out_dir, input_key=key,
-                             carved_points=carved,
-                             before_marker=lambda d: corridor_report(conf.corridor, d, path)))
+    summary = stage.build(conf.walkable, ground, mesh.collision, path, out_dir, carved_points=carved)
+    corridor_report(conf.corridor, out_dir, path)
+    return summary
+
+
+def check(conf: Config, out: Outputs) -> None:
+    """The corridor gate on the finished folder's report (after the marker; writes nothing)."""
     corridor_gate(read_corridor_report(out))
-    return out
 
 
 def corridor_report(conf: CorridorConfig, walk_dir: Path, path: np.ndarray) -> dict:
