@@ -155,6 +155,8 @@ def test_dataset_even_eviction_keeps_every_round_in_proportion():
     assert first.min() == 0 and first.max() == 19  # spread over the round, not its head or tail
     with pytest.raises(DistillError, match="bad_eviction"):
         Dataset(10, eviction="random")
+    with pytest.raises(ValueError, match="eviction"):
+        DistillConfig(eviction="random")
 
 
 def test_scene_groups_use_every_scene():

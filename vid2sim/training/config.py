@@ -66,6 +66,8 @@ class DistillConfig:
     def __post_init__(self) -> None:
         if isinstance(self.student, dict):
             self.student = StudentConfig(**self.student)
+        if self.eviction not in ("oldest", "even"):
+            raise ValueError(f"DistillConfig.eviction: {self.eviction!r} is not one of 'oldest', 'even'")
 
 
 @checked
