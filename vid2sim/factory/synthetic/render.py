@@ -208,7 +208,10 @@ def _ground_truth(conf: StreetConfig, T: np.ndarray, scene: StreetScene) -> dict
 
 
 def render_video(scene: StreetScene, conf: StreetConfig, out_dir: Path) -> SyntheticClip:
-    """Render the walk through `scene` into out_dir (skipped when already finished for this config)."""
+    """Render the walk through `scene` into out_dir (skipped when already finished for this config).
+
+    Test and benchmark data, not a factory step: this package sits below `runtime` in the
+    layers, so it checks and writes its own marker rather than going through the runner."""
     out_dir = Path(out_dir)
     key = stage_key(STAGE, STAGE_VERSION, conf)
     if is_done(out_dir, key):
