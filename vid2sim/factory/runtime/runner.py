@@ -85,7 +85,7 @@ def run_stage(work: StageWork, out_dir: Path) -> Path:
         with Timer() as t:
             summary = work.build(out_dir)
     except BaseException:
-        if not any(out_dir.iterdir()):  # a run that failed before writing leaves no folder
+        if out_dir.is_dir() and not any(out_dir.iterdir()):  # failed before writing: no folder left
             out_dir.rmdir()
         raise
     mark_done(out_dir, work.stage, key, summary, t.seconds)
