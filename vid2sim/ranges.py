@@ -1,13 +1,14 @@
 """The valid range of every numeric config field, and the walk that checks a config against them.
 
 A field's range comes from its name (the leaf of its dotted path), by the first rule that names it:
-  - signed: offsets and thresholds that may be negative (`ground_z_m`, `reward.failure`, ...);
+  - signed: offsets, thresholds and directions that may be negative (`ground_z_m`, `reward.failure`,
+    `pitch_deg`, `sun_direction`, ...);
   - unit: probabilities and fractions in [0, 1] (`*_prob`, `*fraction`, `gamma`, `tau`, ...);
   - positive: sizes, rates and lengths that must be > 0 (`fps`, `resolution_m`, `capture_height_m`, ...);
   - counts: iterations, batch sizes, envs, trials, widths, ... that must be >= 1;
   - everything else: >= 0.
-Some add an upper bound (`jpeg_quality` <= 100, `frames` <= 6, angles below 180 deg, ports, and
-image sizes that decide an allocation: `width` / `height` <= 8192).
+Some add an upper bound (`jpeg_quality` <= 100, `video_crf` <= 51, grey levels <= 255, `frames` <= 6,
+angles below 180 deg, ports, and image sizes that decide an allocation: `width` / `height` <= 8192).
 Every float must be finite. Items of a tuple / list field take the field's range; None is allowed
 where the type is Optional. `check_ranges(config)` raises `RangeError` naming the dotted path.
 
@@ -56,14 +57,16 @@ class Range:
 
 
 SIGNED = {"ground_z_m": None, "failure": None, "exposure_ev": None, "score_threshold": None,
-          "camera_params": None, "first_octave": -1, "sde_sample_freq": -1, "min_ncc": -1}
+          "camera_params": None, "first_octave": -1, "sde_sample_freq": -1, "min_ncc": -1,
+          "pitch_deg": -90, "yaw_deg": None, "sun_direction": -1}
 UNIT = re.compile(r"(_prob|fraction)$|^(gamma|tau|beta0|beta_decay|min_beta|keep_mass|t_stop|lambda_dssim|"
                   r"min_alpha|max_dynamic|min_area|people_min_motion|segment_min_motion|min_opacity|"
-                  r"static_fraction)$")
+                  r"static_fraction|walk_lateral)$")
 POSITIVE = re.compile(r"^(fps|image_fps|fallback_fps|clip_seconds|learning_rate|capture_height_m|wheelbase|"
                       r"max_speed|length|width|height|vfov_deg|near|far|depth_max|success_radius|step_m|"
                       r"area_spacing_m|bin_m|along_m|trunc_voxels|ground_point_cell_m|depth_max_m|timeout_s|"
-                      r"resolution_m|map_resolution_m|voxel_m|scale|num_cpus_per_run|num_cpus_per_actor)$")
+                      r"resolution_m|map_resolution_m|voxel_m|scale|num_cpus_per_run|num_cpus_per_actor|coarse_scale|"
+                      r"hfov_deg|length_m|duration_s|gt_grid_resolution)$")
 COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_stack|physics_hz|control_hz|"
                     r"max_side|analysis_width|workers|max_image_size|max_num_features|overlap|num_threads|"
                     r"ransac_iters|max_width|sh_increase_every|checkpoint_every|every|"
@@ -73,13 +76,15 @@ COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_st
                     r"gradient_steps|buffer_size|max_steps|seeds|counts|episodes|max_rows|"
                     r"max_gaussians|max_init_points|target_faces|visual_target_faces|net_arch|channels|"
                     r"consistency_views|min_frames|min_ground_points|stuck_steps|eval_max_steps|train_scenes|"
-                    r"n_steers)$")
+                    r"n_steers|n_splats|min_chars|block_px)$")
 UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "sh_degree": 3, "port": 65535,
          "vfov_deg": 179, "max_steer_deg": 89, "max_tilt_deg": 90, "ground_normal_deg": 90,
          "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
          # sizes that decide an allocation (an image, a frame stack) are capped too
          "width": 8192, "height": 8192, "max_side": 16384, "max_image_size": 16384, "analysis_width": 8192,
-         "max_width": 8192, "frame_stack": 64}
+         "max_width": 8192, "frame_stack": 64,
+         "pitch_deg": 90, "sun_direction": 1, "roll_deg": 180, "coarse_scale": 1, "black_level": 255,
+         "video_crf": 51}
 
 
 def field_range(name: str) -> Range:
