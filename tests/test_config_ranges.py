@@ -1,8 +1,8 @@
 """Every numeric field of every config the command line runs with (`vid2sim config show`'s
 sections, walked from the configs themselves) refuses a value outside its range by name, and its
 default lies inside. The same holds for the Python API: every `*Config` dataclass of the training,
-env and registry packages (StudyConfig, DistillConfig, StudentConfig, EvalConfig, ...) checks its
-fields whenever it is built or loaded."""
+env, registry, factory and splat packages (StudyConfig, DistillConfig, EvalConfig, PipelineConfig,
+ReconConfig, DecodeConfig, ...) checks its fields whenever it is built or loaded."""
 
 from __future__ import annotations
 
@@ -23,7 +23,16 @@ from typer.testing import CliRunner
 from vid2sim.cli.app import app
 from vid2sim.cli.settings import (SECTIONS, _placeholder, apply_eval_overrides, apply_overrides, describe_section,
                                   section_config, type_hints)
+from vid2sim.factory.geometry.meshing import MeshingConfig
+from vid2sim.factory.geometry.walkable import WalkableConfig
+from vid2sim.factory.ingest.decode import DecodeConfig
+from vid2sim.factory.recon.config import ReconConfig
+from vid2sim.factory.recon.config import preset as recon_preset
+from vid2sim.factory.sfm.metric import MetricConfig
+from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.ranges import CHECKED, RangeError, check_ranges, field_range
+from vid2sim.splats.cpu.simfit import FitConfig
+from vid2sim.splats.cpu.simready import SimReadyConfig
 from vid2sim.training.config import DistillConfig, TrainConfig
 from vid2sim.training.evaluate import EvalConfig
 from vid2sim.training.study import StudyConfig, StudyError, run_study
@@ -105,11 +114,12 @@ def test_cli_reports_a_field_out_of_range(sets, named):
 
 # ------------------------------------------------------------------ the Python API: configs check themselves
 
-CONFIG_PACKAGES = ("vid2sim.training", "vid2sim.envs", "vid2sim.registry")
+CONFIG_PACKAGES = ("vid2sim.training", "vid2sim.envs", "vid2sim.registry", "vid2sim.factory", "vid2sim.splats")
 
 
 def user_facing_configs() -> list[type]:
-    """Every dataclass named `*Config` defined in the training, env and registry packages."""
+    """Every dataclass named `*Config` defined in the training, env, registry, factory and splat packages
+    (a factory step's own `Config` included)."""
     found = []
     for name in CONFIG_PACKAGES:
         pkg = importlib.import_module(name)
@@ -117,7 +127,12 @@ def user_facing_configs() -> list[type]:
             mod = importlib.import_module(info.name)
             found += [obj for attr, obj in vars(mod).items() if inspect.isclass(obj) and attr.endswith("Config")
                       and obj.__module__ == mod.__name__ and dataclasses.is_dataclass(obj)]
-    return sorted(found, key=lambda c: c.__name__)
+    return sorted(found, key=lambda c: (c.__name__, c.__module__))
+
+
+def label(cls: type) -> str:
+    """The class name; a step's `Config` with its module's name (`walkable.Config`)."""
+    return f"{cls.__module__.rsplit('.', 1)[-1]}.{cls.__name__}" if cls.__name__ == "Config" else cls.__name__
 
 
 CONFIGS = user_facing_configs()
@@ -166,16 +181,20 @@ def test_every_config_checks_itself():
     names = {c.__name__ for c in CONFIGS}
     assert {"StudyConfig", "DistillConfig", "StudentConfig", "EvalConfig", "TrainConfig", "SACConfig", "EnvConfig",
             "AugmentConfig", "SplitConfig"} <= names
-    assert [c.__name__ for c in CONFIGS if c not in CHECKED] == []
-    assert len(API_FIELDS) > 100
+    assert {"PipelineConfig", "DecodeConfig", "FaceConfig", "PlateConfig", "MasksConfig", "SfMConfig", "MetricConfig",
+            "ReconConfig", "DensifyConfig", "MeshingConfig", "WalkableConfig", "CorridorConfig", "StreetConfig",
+            "FitConfig", "SimReadyConfig", "StaticSceneConfig"} <= names
+    assert {"meshing.Config", "walkable.Config", "bundle.Config"} <= {label(c) for c in CONFIGS}
+    assert [label(c) for c in CONFIGS if c not in CHECKED] == []
+    assert len(API_FIELDS) > 300
 
 
-@pytest.mark.parametrize("cls", CONFIGS, ids=[c.__name__ for c in CONFIGS])
+@pytest.mark.parametrize("cls", CONFIGS, ids=[label(c) for c in CONFIGS])
 def test_config_defaults_lie_inside_their_ranges(cls):
     check_ranges(built(cls))
 
 
-@pytest.mark.parametrize("cls,name,floats", API_FIELDS, ids=[f"{c.__name__}.{n}" for c, n, _ in API_FIELDS])
+@pytest.mark.parametrize("cls,name,floats", API_FIELDS, ids=[f"{label(c)}.{n}" for c, n, _ in API_FIELDS])
 def test_building_a_config_out_of_range_is_named(cls, name, floats):
     base = built(cls)
     value = getattr(base, name)
@@ -199,6 +218,50 @@ def test_building_a_config_out_of_range_is_named(cls, name, floats):
 def test_python_api_names_the_field_and_the_reason(build, named):
     with pytest.raises(RangeError, match=rf"^{re.escape(named)} is out of range \(must be "):
         build()
+
+
+@pytest.mark.parametrize("build,named", [
+    (lambda: DecodeConfig(fps=0), "DecodeConfig.fps: 0"),
+    (lambda: DecodeConfig(jpeg_quality=101), "DecodeConfig.jpeg_quality: 101"),
+    (lambda: dataclasses.replace(recon_preset("fast"), iterations=0), "ReconConfig.iterations: 0"),
+    (lambda: recon_preset("quick", coarse_scale=1.5), "ReconConfig.coarse_scale: 1.5"),
+    (lambda: ReconConfig.from_dict({"densify": {"every": 0}}), "DensifyConfig.every: 0"),
+    (lambda: MeshingConfig(voxel_m=math.nan), "MeshingConfig.voxel_m: nan"),
+    (lambda: WalkableConfig(resolution_m=-0.1), "WalkableConfig.resolution_m: -0.1"),
+    (lambda: MetricConfig(capture_height_m=math.inf), "MetricConfig.capture_height_m: inf"),
+    (lambda: street_preset("test", pitch_deg=-91.0), "StreetConfig.pitch_deg: -91.0"),
+    (lambda: FitConfig(iterations=0), "FitConfig.iterations: 0"),
+    (lambda: SimReadyConfig(keep_mass=1.5), "SimReadyConfig.keep_mass: 1.5"),
+])
+def test_factory_and_splat_configs_name_the_field_and_the_reason(build, named):
+    with pytest.raises(RangeError, match=rf"^{re.escape(named)} is out of range \(must be "):
+        build()
+
+
+def test_factory_presets_lie_inside_their_ranges():
+    from vid2sim.factory.ingest.decode import PRESETS as DECODE
+    from vid2sim.factory.recon.config import PRESETS as RECON
+    from vid2sim.factory.runtime.config import preset
+    from vid2sim.factory.sfm.sfm import preset as sfm_preset
+    from vid2sim.factory.synthetic.config import PRESETS as STREETS
+    from vid2sim.factory.synthetic.config import varied
+
+    built_ = [preset(n) for n in ("fast", "paper")] + [make() for make in RECON.values()]
+    built_ += [sfm_preset(n) for n in ("fast", "accurate")] + list(DECODE.values()) + list(STREETS.values())
+    built_ += [varied(seed) for seed in range(40)]
+    for conf in built_:
+        check_ranges(conf)
+
+
+def test_a_loaded_pipeline_config_is_checked(tmp_path):
+    from vid2sim.factory.runtime.config import PipelineConfig, preset
+
+    path = preset("fast").save(tmp_path / "pipeline.json")
+    data = json.loads(path.read_text())
+    data["walkable"]["robot_radius_m"] = -0.25
+    path.write_text(json.dumps(data))
+    with pytest.raises(RangeError, match=r"^WalkableConfig.robot_radius_m: -0.25 is out of range \(must be "):
+        PipelineConfig.load(path)
 
 
 def test_a_loaded_run_config_is_checked(tmp_path):

@@ -16,7 +16,7 @@ from vid2sim.factory.sfm.posed import PosedClip
 
 
 def tiny_conf(**kw) -> C.ReconConfig:
-    conf = C.preset("fast", **{"iterations": 40, "max_width": 40, "checkpoint_every": 0,
+    conf = C.preset("fast", **{"iterations": 40, "max_width": 40, "checkpoint_every": 100_000,
                                "max_init_points": 600, **kw})
     conf.densify = dataclasses.replace(conf.densify, start_iter=10, stop_iter=35, every=10,
                                        opacity_reset_every=1000, max_gaussians=2000)

@@ -103,11 +103,11 @@ def test_the_marker_is_the_last_file_the_walkable_stage_writes(tmp_path, recorde
 
 
 def test_a_gated_clip_keeps_the_marker_last_and_is_gated_again_from_the_cache(tmp_path, recorded):
-    strict = CorridorConfig(gate_min_walkable_fraction=1.01)  # no path can pass
+    strict = CorridorConfig(gate_max_components=0)  # a walked path has at least one component: none can pass
     work = _work(tmp_path, PipelineConfig(corridor=strict))
     with pytest.raises(StageError) as e:
         stage_walkable(work)
-    assert e.value.stage == "walkable" and e.value.reason == "corridor_not_walkable"
+    assert e.value.stage == "walkable" and e.value.reason == "corridor_split"
     walk_dir = tmp_path / "clip" / "walkable"
     assert len(recorded) == 1
     _check_marker_last(walk_dir, recorded[0])
@@ -115,7 +115,7 @@ def test_a_gated_clip_keeps_the_marker_last_and_is_gated_again_from_the_cache(tm
     done = _state(walk_dir)
     with pytest.raises(StageError) as again:
         stage_walkable(work)
-    assert again.value.reason == "corridor_not_walkable" and _state(walk_dir) == done and len(recorded) == 1
+    assert again.value.reason == "corridor_split" and _state(walk_dir) == done and len(recorded) == 1
     # the corridor config decides corridor.json, a file of the stage: changing it reruns the stage
     assert stage_walkable(replace(work, conf=PipelineConfig())) == walk_dir
     assert len(recorded) == 2

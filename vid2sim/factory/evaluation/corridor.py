@@ -26,8 +26,10 @@ from vid2sim.factory.geometry.raycast import MeshLike, mesh_arrays
 from vid2sim.factory.geometry.walked_path import (  # noqa: F401  (CorridorError re-exported)
     BODY_RADIUS_M, CorridorError, walked_path)
 from vid2sim.formats.walkable import WalkableGrid
+from vid2sim.ranges import checked
 
 
+@checked
 @dataclass(frozen=True)
 class CorridorConfig:
     body_radius_m: float = BODY_RADIUS_M  # m, radius of the walker's body swept along the camera path

@@ -23,8 +23,10 @@ from scipy.spatial import cKDTree
 
 from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M, walked_path
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
+from vid2sim.ranges import checked
 
 
+@checked
 @dataclass(frozen=True)
 class CarveConfig:
     # ray (space) carving: off by default, it did not pay on the GoPro clip (its phantom

@@ -23,8 +23,10 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from vid2sim.factory.geometry.walked_path import walked_path
+from vid2sim.ranges import checked
 
 
+@checked
 @dataclass(frozen=True)
 class KerbConfig:
     along_m: float = 2.0  # profile segment length along the walk

@@ -49,6 +49,7 @@ from vid2sim.factory.geometry.mesh_ops import remove_fragments, simplify, tidy
 from vid2sim.factory.geometry.raycast import pixel_rays_cam
 from vid2sim.factory.geometry.visual_mesh import make_visual_mesh
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer
+from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
@@ -76,6 +77,7 @@ class MeshingError(StageError):
         super().__init__(STAGE, reason, detail)
 
 
+@checked
 @dataclass
 class MeshingConfig:
     voxel_m: float = 0.1  # m, TSDF voxel size (the paper's 0.1)

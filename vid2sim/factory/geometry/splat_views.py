@@ -15,12 +15,14 @@ import torch
 
 from vid2sim.factory.geometry.meshing import DepthView
 from vid2sim.factory.sfm.posed import PosedClip
+from vid2sim.ranges import checked
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.render import render
 from vid2sim.splats.types import RasterSettings
 
 
+@checked
 @dataclass(frozen=True)
 class SplatViewConfig:
     # 0.3 x 854x480 with every 2nd frame: the 0.1 m TSDF needs no more (demo street: same

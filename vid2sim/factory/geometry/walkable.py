@@ -66,6 +66,7 @@ from vid2sim.factory.geometry.surface_sampling import points_by_spacing
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid
+from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "walkable"
@@ -91,6 +92,7 @@ class WalkableError(StageError):
         super().__init__(STAGE, reason, detail)
 
 
+@checked
 @dataclass
 class WalkableConfig:
     resolution_m: float = 0.1  # m, cell size of the ground model (evidence, heights, noise, kerbs)

@@ -18,10 +18,12 @@ from vid2sim.factory.ingest.clip_list import ManifestRow, load_manifest
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError
 from vid2sim.factory.ingest.video_io import probe_video
+from vid2sim.ranges import checked
 
 DEFAULT_CLIP_SECONDS = 15.0
 
 
+@checked
 @dataclass(frozen=True)
 class ClipsConfig:
     clip_seconds: float = DEFAULT_CLIP_SECONDS  # s, length of the windows a long source is cut into

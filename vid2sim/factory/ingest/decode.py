@@ -42,6 +42,7 @@ from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.ingest.video_io import check_complete, iter_frames, probe_video
+from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "decode"
@@ -60,6 +61,7 @@ OUTPUTS = DecodeOutputs()
 
 
 
+@checked
 @dataclass(frozen=True)
 class DecodeConfig:
     fps: float = 10.0  # target sampling rate; >= source fps keeps every frame

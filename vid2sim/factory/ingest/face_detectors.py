@@ -26,8 +26,10 @@ import cv2
 import numpy as np
 
 from vid2sim.factory.runtime.stage_cache import StageError
+from vid2sim.ranges import checked
 
 
+@checked
 @dataclass(frozen=True)
 class FaceConfig:
     detector: str = "centerface"  # centerface | dlib_hog | cascade | yunet | none

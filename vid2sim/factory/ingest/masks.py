@@ -40,6 +40,7 @@ import pyarrow.parquet as pq
 
 from vid2sim.factory.ingest.decode import kept_images
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
+from vid2sim.ranges import checked
 
 STAGE = "masks"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
@@ -56,6 +57,7 @@ OUTPUTS = MasksOutputs()
 
 
 
+@checked
 @dataclass(frozen=True)
 class MasksConfig:
     analysis_width: int = 424  # flow resolution (px); masks are upsampled to the image size

@@ -18,7 +18,10 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
+from vid2sim.ranges import checked
 
+
+@checked
 @dataclass(frozen=True)
 class PlateConfig:
     detector: str = "text_rows"  # text_rows | none

@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional
 
+from vid2sim.ranges import checked
 from vid2sim.versioning import from_jsonable, to_jsonable
 
 
+@checked
 @dataclass
 class DepthPriorConfig:
     """Which depth prior supervises the geometry losses.
@@ -48,6 +50,7 @@ class DepthPriorConfig:
     device: str = "cpu"  # torch device the Depth-Anything model runs on
 
 
+@checked
 @dataclass
 class DensifyConfig:
     """AbsGS densification (3DGS schedule; thresholds in 3DGS NDC units)."""
@@ -65,6 +68,7 @@ class DensifyConfig:
     max_gaussians: int = 1_000_000  # densification stops growing the model at this count
 
 
+@checked
 @dataclass
 class LossConfig:
     """Loss weights (paper eq. 5: all geometry weights 1) and options."""
@@ -81,6 +85,7 @@ class LossConfig:
     normal_pca_window: int = 5  # PCA neighbourhood for prior normals (pixels, odd)
 
 
+@checked
 @dataclass
 class LRConfig:
     """3DGS learning rates; means are scaled by the scene extent and decay exponentially."""
@@ -94,6 +99,7 @@ class LRConfig:
     quats: float = 1e-3  # rotations
 
 
+@checked
 @dataclass
 class ReconConfig:
     """Geometry-consistent Gaussian-splat reconstruction of one PosedClip."""
@@ -107,7 +113,7 @@ class ReconConfig:
     backend: str = "auto"  # renderer backend: "auto" | "torch" | "cpu" | "cuda"
     max_init_points: int = 100_000  # SfM points the Gaussians start from, at most (random subset)
     seed: int = 0  # torch / numpy seed (initial point subset, view order)
-    checkpoint_every: int = 500  # iterations between checkpoints (a re-run resumes from the last; 0 = none)
+    checkpoint_every: int = 500  # iterations between checkpoints (a re-run resumes from the last; >= iterations: none)
     eval_max_frames: int = 0  # 0 = every held-out frame
     # coarse-to-fine: the first `coarse_iterations` steps render at `coarse_scale` x the training
     # resolution (images, masks, intrinsics and priors downscaled alike); 0 = off

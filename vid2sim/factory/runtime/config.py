@@ -24,6 +24,7 @@ from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.sfm.metric import MetricConfig
 from vid2sim.factory.sfm.sfm import SfMConfig
 from vid2sim.factory.sfm.sfm import preset as sfm_preset
+from vid2sim.ranges import checked
 from vid2sim.versioning import from_jsonable, to_jsonable
 
 
@@ -31,6 +32,7 @@ def _sfm_config(preset: str) -> SfMConfig:
     return sfm_preset("fast" if preset == "fast" else "accurate")
 
 
+@checked
 @dataclass
 class PipelineConfig:
     """Every stage's config; saved with each scene (pipeline hash = hash of this)."""

@@ -32,6 +32,7 @@ from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
+from vid2sim.ranges import checked
 
 STAGE = "metric"
 STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
@@ -47,6 +48,7 @@ class MetricOutputs:
 OUTPUTS = MetricOutputs()
 
 
+@checked
 @dataclass
 class MetricConfig:
     capture_height_m: float = 1.5  # camera height above the ground (hand-held default)

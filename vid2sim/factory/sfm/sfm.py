@@ -31,6 +31,7 @@ import numpy as np
 from vid2sim.factory.sfm.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
 from vid2sim.factory.sfm.export import write_colmap, write_transforms
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer, fresh_dir, input_key
+from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
@@ -49,6 +50,7 @@ OUTPUTS = SfMOutputs()
 IMAGE_EXTS = (".jpg", ".jpeg", ".png")
 
 
+@checked
 @dataclass
 class SfMConfig:
     """SfM options. `SfMConfig.preset("fast" | "accurate")` gives the named presets."""

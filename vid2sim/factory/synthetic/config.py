@@ -7,7 +7,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from vid2sim.ranges import checked
 
+
+@checked
 @dataclass(frozen=True)
 class StreetConfig:
     """One procedural street and the hand-held walk through it.

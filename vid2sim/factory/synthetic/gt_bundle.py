@@ -27,11 +27,13 @@ from vid2sim.factory.synthetic.textures import albedo, shade
 from vid2sim.factory.synthetic.trajectory import walking_poses
 from vid2sim.formats.bundle import write_bundle
 from vid2sim.formats.scene import make_scene_json
+from vid2sim.ranges import checked
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply
 from vid2sim.splats.sh import num_sh_coeffs, rgb_to_sh0
 
 
+@checked
 @dataclass(frozen=True)
 class GTBundleConfig:
     n_splats: int = 200_000

@@ -15,6 +15,8 @@ from typing import Sequence
 import numpy as np
 import torch
 
+from vid2sim.ranges import checked
+
 from ..camera import Camera
 from ..model import GaussianModel
 from ..render import finish
@@ -24,6 +26,7 @@ from .function import rasterize
 PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 
 
+@checked
 @dataclass(frozen=True)
 class FitConfig:
     """iterations: Adam steps (one random view each); learning rates per parameter group

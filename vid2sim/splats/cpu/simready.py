@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from vid2sim.formats.robot import ROBOT
+from vid2sim.ranges import checked
 
 from ..camera import Camera, look_at
 from ..model import GaussianModel
@@ -52,6 +53,7 @@ ROBOT_CAMERA_HEIGHT_M = ROBOT.camera_height_m
 ROBOT_CAMERA_FORWARD_M = ROBOT.camera_forward_m
 
 
+@checked
 @dataclass(frozen=True)
 class SimReadyConfig:
     """keep_mass: fraction of the total measured blend weight the kept splats carry.

@@ -24,6 +24,8 @@ import numba
 import numpy as np
 import torch
 
+from vid2sim.ranges import checked
+
 from ..camera import Camera
 from ..model import GaussianModel
 from ..sh import C0
@@ -39,6 +41,7 @@ from .static_kernels import (cull_cells, finish_images, project_static, scatter_
 ALPHA_MIN = 1.0 / 255.0
 
 
+@checked
 @dataclass(frozen=True)
 class StaticSceneConfig:
     """cell_size: splats per culling cell (Morton-ordered runs).

@@ -32,6 +32,7 @@ from vid2sim.formats.errors import BundleError
 from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.scene import make_scene_json
 from vid2sim.formats.walkable import load_walkable
+from vid2sim.ranges import checked
 from vid2sim.splats.camera import Camera
 from vid2sim.splats.ply import read_ply
 from vid2sim.splats.render import render
@@ -42,6 +43,7 @@ VERSION = 3  # bump when this stage's outputs change for the same inputs
 SCENE = "scene"
 
 
+@checked
 @dataclass(frozen=True)
 class Config:
     job: ClipJob  # scene id, licence, source facts and tags of the clip

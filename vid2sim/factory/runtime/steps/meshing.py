@@ -17,6 +17,7 @@ from vid2sim.factory.geometry.splat_views import SplatViewConfig, render_views
 from vid2sim.factory.runtime.stage_cache import StageWork
 from vid2sim.factory.runtime.steps import metric, recon
 from vid2sim.factory.runtime.steps.base import StepOutputs
+from vid2sim.ranges import checked
 from vid2sim.splats.ply import read_ply
 from vid2sim.versioning import config_hash
 
@@ -24,6 +25,7 @@ NAME = stage.STAGE
 VERSION = stage.STAGE_VERSION
 
 
+@checked
 @dataclass(frozen=True)
 class Config:
     views: SplatViewConfig  # the splat depth views rendered for fusion

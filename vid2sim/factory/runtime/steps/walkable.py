@@ -24,6 +24,7 @@ from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.runtime.steps import meshing, metric
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.formats.walkable import load_walkable
+from vid2sim.ranges import checked
 from vid2sim.versioning import config_hash
 
 NAME = stage.STAGE
@@ -31,6 +32,7 @@ VERSION = stage.STAGE_VERSION
 CORRIDOR_REPORT = "corridor.json"
 
 
+@checked
 @dataclass(frozen=True)
 class Config:
     walkable: WalkableConfig  # the walkable map and the physical collision mesh
