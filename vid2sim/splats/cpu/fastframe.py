@@ -313,10 +313,12 @@ O1, O2, O3, O4 = U64(NPIX), U64(2 * NPIX), U64(3 * NPIX), U64(4 * NPIX)  # plane
 
 
 @njit(cache=True, fastmath=True, inline="always")
-def _window(pix, pb, d0, last, hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop, lanes):
+def blend_window(pix, pb, d0, last, hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop, lanes):
     """Blend one splat into `lanes` pixels pix[pb + j] of a row (j <= last: inside its box;
     d0: x offset of lane 0 from the splat centre), branch-free so that it vectorises.
-    Returns (blends, bits j of the lanes whose T fell below t_stop)."""
+    Returns (blends, bits j of the lanes whose T fell below t_stop). The one blend of both
+    fast composites (`composite_fast`, `fastview.composite_view`); inlined, so a caller that
+    ignores the counts compiles to the pixel updates alone."""
     nb = 0
     stop = U64(0)
     for j in range(lanes):
@@ -412,7 +414,7 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
             hcdy = F32(0.5) * cc * dy * dy
             rb = ry * ROW
             for c in range(lo, hi + 1, LANES):
-                nb, stop = _window(pix, U64(rb + c), F32(x0 + c) + F32(0.5) - mx, U64(hi - c),
+                nb, stop = blend_window(pix, U64(rb + c), F32(x0 + c) + F32(0.5) - mx, U64(hi - c),
                                    hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop, LANES)
                 blends += nb
                 new = (stop << U64(c)) & ~rdone[ry]

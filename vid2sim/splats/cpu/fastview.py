@@ -6,9 +6,9 @@ returns (rgb [H, W, 3] uint8, depth [H, W] float32, +inf where the coverage is b
 bit for bit (tests/test_splats_fastview.py), in one numba call with no torch tensors and no
 Camera object. Each FastView keeps its own scratch (one per env; not thread-safe); the packed
 batch is only read, so many views may share it. `composite_view` blends exactly as
-`fastframe.composite_fast` (same pixels) but finds the stopped pixels by scanning the tile every
-CHECK_EVERY splats instead of reducing a stop mask after every blended row (~8 % less CPU at
-the GoPro scene's expert poses).
+`fastframe.composite_fast` (the same `blend_window`, same pixels) but finds the stopped pixels
+by scanning the tile every CHECK_EVERY splats instead of reducing a stop mask after every
+blended row (~8 % less CPU at the GoPro scene's expert poses).
 `finish_u8` is the fused finish; `finish_u8_reference` is the plain numpy version.
 """
 
@@ -21,9 +21,9 @@ from numba import njit
 
 from ._bits import popc64
 from .fastbatch import TILE_SHIFT, T_STOP, FastBatch
-from .fastframe import (A_MAX, ALL_BITS, LANES, NPIX, NQ, O1, O2, O3, O4, Q_A, Q_B, Q_BL, Q_C,
-                        Q_CUT, Q_G, Q_O, Q_R, Q_X, Q_Y, Q_Z, ROW, clear_tile, cull_project,
-                        depth_order, exp_neg, finish_tile, sort_bin)
+from .fastframe import (ALL_BITS, LANES, NPIX, NQ, Q_A, Q_B, Q_BL, Q_C, Q_CUT, Q_G, Q_O, Q_R,
+                        Q_X, Q_Y, Q_Z, ROW, blend_window, clear_tile, cull_project, depth_order,
+                        finish_tile, sort_bin)
 
 U64 = np.uint64
 CHECK_EVERY = 32  # splats between two scans of the tile for stopped pixels
@@ -59,24 +59,6 @@ def finish_u8_reference(color: np.ndarray, alpha: np.ndarray, depth_acc: np.ndar
         d = np.where(alpha > 0, depth_acc / np.maximum(alpha, np.float32(1e-6)), 0).astype(np.float32)
     d[alpha < empty_alpha] = np.inf
     return rgb_u8, d
-
-
-@njit(cache=True, fastmath=True, inline="always")
-def _blend_row(pix, pb, d0, last, hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop):
-    """`fastframe._window` with no outputs: the same pixel updates, nothing reduced."""
-    for j in range(LANES):
-        p = pb + U64(j)
-        dx = d0 + F32(j)
-        s = dx * (hca * dx + bdy) + hcdy
-        al = min(A_MAX, o * exp_neg(min(max(s, F32(0.0)), ct)))
-        Tp = pix[p]
-        ok = (s <= ct) & (Tp >= t_stop) & (U64(j) <= last)
-        w = al * Tp if ok else F32(0.0)
-        pix[p + O1] += w * c0
-        pix[p + O2] += w * c1
-        pix[p + O3] += w * c2
-        pix[p + O4] += w * c3
-        pix[p] = Tp - w
 
 
 @njit(cache=True, fastmath=True)
@@ -127,8 +109,8 @@ def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
             hcdy = F32(0.5) * cc * dy * dy
             rb = ry * ROW
             for c in range(lo, hi + 1, LANES):
-                _blend_row(pix, U64(rb + c), F32(x0 + c) + F32(0.5) - mx, U64(hi - c), hca, bdy,
-                           hcdy, ct, o, c0, c1, c2, c3, t_stop)
+                blend_window(pix, U64(rb + c), F32(x0 + c) + F32(0.5) - mx, U64(hi - c), hca,
+                             bdy, hcdy, ct, o, c0, c1, c2, c3, t_stop, LANES)  # counts unused
         since += 1
         if since == CHECK_EVERY:
             since = 0
