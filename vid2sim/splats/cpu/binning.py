@@ -29,7 +29,7 @@ def _float_key(b):
     return b ^ np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else b ^ np.uint32(0x80000000)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _unpack(q):
     """Tile rectangle (tx0, ty0, tx1, ty1) of a packed uint64."""
     return (np.int64(q & U16), np.int64((q >> 16) & U16), np.int64((q >> 32) & U16),
@@ -54,6 +54,16 @@ def _pow2_shift(tile):
 def _tdiv(x, tile, shift):
     """x // tile for x >= 0 (a shift when tile is a power of two: integer division is slow)."""
     return x >> shift if shift >= 0 else x // tile
+
+
+@njit(cache=True, inline="always")
+def _rect(box, r, tile, shift):
+    """(packed tile rectangle of row r's pixel box, number of tiles it covers)."""
+    tx0, ty0 = _tdiv(box[r, 0], tile, shift), _tdiv(box[r, 1], tile, shift)
+    tx1, ty1 = _tdiv(box[r, 2], tile, shift), _tdiv(box[r, 3], tile, shift)
+    q = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
+         | (np.uint64(ty1) << 48))
+    return q, (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
 
 
 @njit(parallel=True, cache=True)
@@ -138,12 +148,9 @@ def _keys(fo, box, n_rows, tile, want_pos, n_workers):
                 z[0] = fo[r, F_Z]
                 keys[j] = _float_key(bits[0])
                 rows[j] = r
-                tx0, ty0 = _tdiv(box[r, 0], tile, shift), _tdiv(box[r, 1], tile, shift)
-                tx1, ty1 = _tdiv(box[r, 2], tile, shift), _tdiv(box[r, 3], tile, shift)
-                rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
-                            | (np.uint64(ty1) << 48))
+                rects[j], nt = _rect(box, r, tile, shift)
                 if want_pos:
-                    row_start[r + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+                    row_start[r + 1] = nt
                 j += 1
     if want_pos:
         for r in range(n_rows):
@@ -250,12 +257,9 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
             z[0] = fo[r, F_Z]
             keys[j] = _float_key(bits[0])
             rows[j] = r
-            tx0, ty0 = _tdiv(box[r, 0], tile, shift), _tdiv(box[r, 1], tile, shift)
-            tx1, ty1 = _tdiv(box[r, 2], tile, shift), _tdiv(box[r, 3], tile, shift)
-            rects[j] = (np.uint64(tx0) | (np.uint64(ty0) << 16) | (np.uint64(tx1) << 32)
-                        | (np.uint64(ty1) << 48))
+            rects[j], nt = _rect(box, r, tile, shift)
             if want_pos:
-                row_start[r + 1] = (tx1 - tx0 + 1) * (ty1 - ty0 + 1)
+                row_start[r + 1] = nt
             j += 1
     if want_pos:
         for r in range(n_rows):
@@ -263,9 +267,7 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
     rows, rects = _radix_sort_serial(keys, rows, rects)
     counts = np.zeros(n_tiles + 1, np.int64)
     for k in range(n):
-        q = rects[k]
-        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
-        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
+        tx0, ty0, tx1, ty1 = _unpack(rects[k])
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 counts[ty * tiles_x + tx + 1] += 1
@@ -275,9 +277,7 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
     pos = np.empty(counts[n_tiles] if want_pos else 0, np.int64)
     fill = counts[:n_tiles].copy()
     for k in range(n):
-        q = rects[k]
-        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
-        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
+        tx0, ty0, tx1, ty1 = _unpack(rects[k])
         r = rows[k]
         j = row_start[r] if want_pos else 0
         for ty in range(ty0, ty1 + 1):
