@@ -8,7 +8,7 @@
 Scenes are built once by the factory and cached (benchmarks/env_scenes.py: the `make demo`
 street; the shared GoPro MAX sidewalk clip when ../shared/data is there). Cameras: robot
 poses along the walked path snapped to the walkable map, 0.6 m above the ground, heading
-along the path +-25 deg, the envs' intrinsics (simready.robot_cameras: 60 deg vertical fov, 128x72).
+along the path +-25 deg, the envs' intrinsics (env_simready.robot_cameras: 60 deg vertical fov, 128x72).
 Prints frames/s on 1 and 2 threads (and frames per CPU-second: per core), the per-phase
 split, splats in view, blended splats per pixel, and PSNR/SSIM against the exact render for
 every approximation. The sim-ready set is measured (and fitted) on 256 other robot views
@@ -41,16 +41,16 @@ from vid2sim.factory.recon.losses import ssim_map  # noqa: E402
 from vid2sim.formats.walkable import WalkableGrid, load_walkable  # noqa: E402
 from vid2sim.splats import RasterSettings, read_ply  # noqa: E402
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig  # noqa: E402
-from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
-from vid2sim.splats.cpu.fastbatch import TILE_SHIFT, FastBatch  # noqa: E402
-from vid2sim.splats.cpu.fastframe import (NPIX, NQ, composite_fast, cull_project,  # noqa: E402
+from vid2sim.splats.cpu.env_batch import SceneBatch  # noqa: E402
+from vid2sim.splats.cpu.env_fast_batch import TILE_SHIFT, FastBatch  # noqa: E402
+from vid2sim.splats.cpu.env_fast_frame import (NPIX, NQ, composite_fast, cull_project,  # noqa: E402
                                           depth_order, sort_bin)
 from vid2sim.splats.cpu.binning import _sort_and_bin_serial  # noqa: E402
-from vid2sim.splats.cpu.frame import composite_frame, project_serial  # noqa: E402
-from vid2sim.splats.cpu.function import camera_arrays  # noqa: E402
-from vid2sim.splats.cpu.preprocess import NF  # noqa: E402
-from vid2sim.splats.cpu.simready import (SimReadyConfig, robot_cameras, sim_ready)  # noqa: E402
-from vid2sim.splats.cpu.static_kernels import cull_cells  # noqa: E402
+from vid2sim.splats.cpu.env_frame import composite_frame, project_serial  # noqa: E402
+from vid2sim.splats.cpu.project import camera_arrays  # noqa: E402
+from vid2sim.splats.cpu.project import NF  # noqa: E402
+from vid2sim.splats.cpu.env_simready import (SimReadyConfig, robot_cameras, sim_ready)  # noqa: E402
+from vid2sim.splats.cpu.env_scene_kernels import cull_cells  # noqa: E402
 from vid2sim.splats.cpu.synthetic import street_scene  # noqa: E402
 
 W, H = 128, 72

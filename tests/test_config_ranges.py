@@ -31,8 +31,8 @@ from vid2sim.factory.recon.config import preset as recon_preset
 from vid2sim.factory.sfm.metric import MetricConfig
 from vid2sim.factory.synthetic.config import preset as street_preset
 from vid2sim.ranges import CHECKED, RangeError, check_ranges, field_range
-from vid2sim.splats.cpu.simfit import FitConfig
-from vid2sim.splats.cpu.simready import SimReadyConfig
+from vid2sim.splats.cpu.env_simfit import FitConfig
+from vid2sim.splats.cpu.env_simready import SimReadyConfig
 from vid2sim.training.config import DistillConfig, TrainConfig
 from vid2sim.training.evaluate import EvalConfig
 from vid2sim.training.study import StudyConfig, StudyError, run_study

@@ -23,7 +23,7 @@ from vid2sim.factory.geometry.walked_path import BODY_RADIUS_M
 from vid2sim.formats.errors import BundleError
 from vid2sim.formats.robot import ROBOT, RobotSpec
 from vid2sim.formats.scene import check_scene_json, make_scene_json
-from vid2sim.splats.cpu.simready import SimReadyConfig, robot_cameras
+from vid2sim.splats.cpu.env_simready import SimReadyConfig, robot_cameras
 
 
 def test_the_spec_is_the_documented_robot():

@@ -19,7 +19,7 @@ gsplat = pytest.importorskip("gsplat")
 
 from vid2sim.splats import GaussianModel  # noqa: E402
 from vid2sim.splats.cpu import StaticScene  # noqa: E402
-from vid2sim.splats.cpu.batch import SceneBatch  # noqa: E402
+from vid2sim.splats.cpu.env_batch import SceneBatch  # noqa: E402
 from vid2sim.splats.cuda import rasterize as cuda_rasterize  # noqa: E402
 from vid2sim.splats.cuda import render_batch  # noqa: E402
 

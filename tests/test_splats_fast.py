@@ -1,4 +1,4 @@
-"""Approximate env frames (fastframe.py / fastbatch.py) against the exact env frames."""
+"""Approximate env frames (env_fast_frame.py / env_fast_batch.py) against the exact env frames."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import pytest
 import torch
 
 from vid2sim.splats.cpu import StaticScene
-from vid2sim.splats.cpu.batch import SceneBatch
-from vid2sim.splats.cpu.fastbatch import FastBatch
-from vid2sim.splats.cpu.simready import SimReadyConfig, robot_cameras, sim_ready
+from vid2sim.splats.cpu.env_batch import SceneBatch
+from vid2sim.splats.cpu.env_fast_batch import FastBatch
+from vid2sim.splats.cpu.env_simready import SimReadyConfig, robot_cameras, sim_ready
 from vid2sim.splats.cpu.synthetic import robot_camera, street_scene
 from vid2sim.splats.types import RasterSettings
 

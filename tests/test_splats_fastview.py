@@ -8,9 +8,9 @@ import torch
 
 from vid2sim.envs.rendering import EMPTY_ALPHA, view_outputs
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
-from vid2sim.splats.cpu.fastbatch import FastBatch
-from vid2sim.splats.cpu.fastview import FastView, finish_u8, finish_u8_reference
-from vid2sim.splats.cpu.function import camera_arrays
+from vid2sim.splats.cpu.env_fast_batch import FastBatch
+from vid2sim.splats.cpu.env_fast_view import FastView, finish_u8, finish_u8_reference
+from vid2sim.splats.cpu.project import camera_arrays
 from vid2sim.splats.cpu.synthetic import robot_camera, street_scene
 from vid2sim.splats.types import RasterSettings
 

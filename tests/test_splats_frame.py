@@ -1,4 +1,4 @@
-"""Batched env frames (frame.py / batch.py) equal single StaticScene renders."""
+"""Batched env frames (env_frame.py / env_batch.py) equal single StaticScene renders."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from vid2sim.splats.cpu import StaticScene
-from vid2sim.splats.cpu.batch import SceneBatch, render_many
+from vid2sim.splats.cpu.env_batch import SceneBatch, render_many
 from vid2sim.splats.cpu.synthetic import robot_camera, street_scene
 from vid2sim.splats.reference import rasterize as torch_rasterize
 from vid2sim.splats.render import finish

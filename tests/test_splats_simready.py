@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from vid2sim.splats.cpu import StaticScene
-from vid2sim.splats.cpu.simready import (SimReadyConfig, keep_by_mass, robot_cameras,
+from vid2sim.splats.cpu.env_simready import (SimReadyConfig, keep_by_mass, robot_cameras,
                                          significance, sim_ready)
 from vid2sim.splats.cpu.synthetic import street_scene
 from vid2sim.splats.types import RasterSettings

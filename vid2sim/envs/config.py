@@ -24,7 +24,7 @@ Constants and where they come from:
   `FastRenderConfig.keep_mass` of the measured blend weight over robot views, one baked colour
   per splat, optionally fitted to exact renders of those views, opaque early stop at `t_stop`;
   kept on disk beside the checkouts) with the approximate fast kernels
-  (`splats/cpu/fastbatch.py`), made once per scene at load (`envs/simready.py`). Default: fast
+  (`splats/cpu/env_fast_batch.py`), made once per scene at load (`envs/simready.py`). Default: fast
   for training (throughput), exact for evaluation (`training=False`: the figures reported).
   What fast trades is measured as PSNR against exact by `benchmarks/envs.py`.
 """

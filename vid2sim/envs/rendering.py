@@ -5,7 +5,7 @@ nothing was drawn). Splats are rendered with `vid2sim.splats` StaticScene (cpu b
 only) with the paper's screen-space covariance culling on; pixels whose splat coverage is below
 0.5 read as empty (+inf depth). `FastSplatView` is the approximate fast path (fidelity "fast"):
 the scene's sim-ready set (`envs/simready.py`) through `splats.cpu.FastBatch`'s kernels, drawn
-by `splats.cpu.fastview.FastView` (one numba call from the pose to the uint8 image), same outputs.
+by `splats.cpu.env_fast_view.FastView` (one numba call from the pose to the uint8 image), same outputs.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from vid2sim.envs.scenes import MeshData, SceneAssets
 from vid2sim.envs.simready import SimReadySet, sim_ready_set
 from vid2sim.splats import GaussianModel, RasterSettings
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
-from vid2sim.splats.cpu.batch import SceneBatch
-from vid2sim.splats.cpu.fastview import FastView
+from vid2sim.splats.cpu.env_batch import SceneBatch
+from vid2sim.splats.cpu.env_fast_view import FastView
 
 EMPTY_ALPHA = 0.5
 

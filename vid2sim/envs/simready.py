@@ -1,8 +1,8 @@
 """The envs' sim-ready splat set (fast render path): made once per scene, cached per process.
 
 `fidelity="fast"` (EnvConfig) renders a pruned copy of the scene's splats with one baked colour
-per splat through `vid2sim.splats.cpu.FastBatch` (see `splats/cpu/simready.py` and
-`splats/cpu/fastframe.py` for what is traded). The set is measured on `FastRenderConfig.views`
+per splat through `vid2sim.splats.cpu.FastBatch` (see `splats/cpu/env_simready.py` and
+`splats/cpu/env_fast_frame.py` for what is traded). The set is measured on `FastRenderConfig.views`
 robot views at the env's camera (random walkable cells, random headings, fixed seed: the same
 set in every process), never on the episode's own views. Envs of one process that load the
 same bundle with the same settings share one set (`_CACHE`), and the set is written as a PLY
@@ -29,8 +29,8 @@ from vid2sim.envs.config import CameraConfig, FastRenderConfig
 from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.splats import Camera, GaussianModel, RasterSettings, read_ply, write_ply
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
-from vid2sim.splats.cpu.fastbatch import FastBatch
-from vid2sim.splats.cpu.simready import SimReadyConfig, sim_ready
+from vid2sim.splats.cpu.env_fast_batch import FastBatch
+from vid2sim.splats.cpu.env_simready import SimReadyConfig, sim_ready
 
 CACHE_ENV = "VID2SIM_SIMREADY_CACHE"
 _CACHE: dict[str, "SimReadySet"] = {}

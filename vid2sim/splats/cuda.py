@@ -137,7 +137,7 @@ def render_batch(scenes: list, cameras: list[Camera], scene_ids: list[int],
                  settings: RasterSettings, background=(0.0, 0.0, 0.0)) -> dict[str, torch.Tensor]:
     """Env frames of N cameras on the GPU: one gsplat call per scene with all of that scene's
     cameras batched (viewmats [C, 4, 4], Ks [C, 3, 3]); the CPU twin is
-    `cpu.batch.SceneBatch.render`. scenes are GaussianModels; camera i sees
+    `cpu.env_batch.SceneBatch.render`. scenes are GaussianModels; camera i sees
     scenes[scene_ids[i]]. Returns rgb [N, H, W, 3], alpha [N, H, W], depth [N, H, W]
     (expected camera z, 0 where empty), all on the GPU.
 

@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit, prange
 
 from ._sched import fetch_add, new_counter
-from .preprocess import F_Z
+from .project import F_Z
 
 U16 = np.uint64(0xFFFF)
 BLOCK = 8192  # rows per block

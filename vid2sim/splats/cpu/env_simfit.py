@@ -21,7 +21,7 @@ from ..camera import Camera
 from ..model import GaussianModel
 from ..render import finish
 from ..types import RasterSettings
-from .function import rasterize
+from .train_rasterize import rasterize
 
 PARAMS = ("means", "quats", "log_scales", "opacity_logits", "sh")
 

@@ -12,8 +12,8 @@ from numba import njit, prange
 from ._geom import jac_limits, pixel_box, screen_cov
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from ._sh import sh_color
-from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
-                         F_Z, sigma_cut, view_parts)
+from .project import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
+                      F_Z, sigma_cut, view_parts)
 
 EDGE_MARGIN_PX = 3.0  # low-pass dilation (<= 1.65 px at 3 sigma) + pixel-centre rounding
 
@@ -148,7 +148,7 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
                    cam, width, height, near, far, cov_alpha, fo, box, radii, n_workers=1):
     """Project Gaussians sel[:n_sel]; row r holds Gaussian sel[r]: fo [R, NF] (as
     project_forward), box [R, 4] pixel box (empty, j1 < j0, when it reaches no pixel or is
-    culled) and radii [R] (0 = culled). Same math as preprocess.screen_and_box, with
+    culled) and radii [R] (0 = culled). Same math as project.screen_and_box, with
     Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)

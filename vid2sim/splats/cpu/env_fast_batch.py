@@ -1,10 +1,10 @@
 """Approximate batched env rendering at RL rates: `FastBatch(scenes).render(cameras, ids)`.
 
-The approximate counterpart of `batch.SceneBatch` (same call, same `EnvFrames`; what is traded
-is listed in `fastframe.py`). Scenes are StaticScenes, normally of sim-ready models
-(`simready.sim_ready`: pruned, colours baked); each is packed once into float32 field
+The approximate counterpart of `env_batch.SceneBatch` (same call, same `EnvFrames`; what is traded
+is listed in `env_fast_frame.py`). Scenes are StaticScenes, normally of sim-ready models
+(`env_simready.sim_ready`: pruned, colours baked); each is packed once into float32 field
 planes in its culling-cell (Morton) order. One call renders every camera: workers draw whole
-frames from a shared counter (`fastframe.render_fast_frames`).
+frames from a shared counter (`env_fast_frame.render_fast_frames`).
 """
 
 from __future__ import annotations
@@ -17,9 +17,9 @@ import torch
 
 from ..camera import Camera
 from ..types import RasterSettings
-from .batch import EnvFrames, check_batch
-from .fastframe import NQ, NS, pack_splats, render_fast_frames
-from .function import camera_arrays
+from .env_batch import EnvFrames, check_batch
+from .env_fast_frame import NQ, NS, pack_splats, render_fast_frames
+from .project import camera_arrays
 
 TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px, the most it takes (128x72: 4 x 3 tiles)
 T_STOP = 0.02  # default opaque-stop transmittance (benchmarks/env_render.py measures others)
@@ -63,7 +63,7 @@ class FastBatch:
                tile_shift: int = TILE_SHIFT, n_workers: Optional[int] = None) -> EnvFrames:
         """Render camera i of scene scene_ids[i] (default all 0), every camera of the
         settings' size (SH degree ignored: one colour per splat). A pixel stops once its
-        transmittance is below t_stop (>= 1e-4) and is renormalised (fastframe.py), as is
+        transmittance is below t_stop (>= 1e-4) and is renormalised (env_fast_frame.py), as is
         every pixel whose alpha reaches fill_alpha (1.0: only the stopped ones).
         `blends` is None (only the per-frame total in stats)."""
         if not 0 <= tile_shift <= 5:

@@ -29,9 +29,9 @@ from ._expf import expf_glibc
 from ._geom import jac_limits
 from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
-from .preprocess import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
-from .raster import A_MAX, A_MIN, ALL_BITS, HALF, ONE, S_MAX, T_MIN, ZERO
-from .static_kernels import _static_one, cull_cells
+from .composite import A_MAX, A_MIN, ALL_BITS, HALF, ONE, S_MAX, T_MIN, ZERO
+from .env_scene_kernels import _static_one, cull_cells
+from .project import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
 
 F32 = np.float32
 # stats columns written per frame
@@ -99,7 +99,7 @@ def _xwindow(pix, pb, px0, livebits, last, mx, dy, ccdy2, ca, cb, o, ct, c0, c1,
             sv <= ct)
         e = expf_glibc(-sv)  # garbage (even inf / nan) outside [0, ct]: masked below
         oe = o * e
-        al = A_MAX if A_MAX < oe else oe  # min(A_MAX, o e) as raster.py
+        al = A_MAX if A_MAX < oe else oe  # min(A_MAX, o e) as composite.py
         ok = cand & (al >= A_MIN)
         Tp = pix[p]
         Tn = Tp * (ONE - al)
@@ -130,7 +130,7 @@ def composite_tile(g, gb, inst, s, n, x0, y0, x1, y1, blend_cap, t_stop, pix, rd
     pixel). contrib [R] (size 0: skipped) gains each splat's blend weights alpha * T at its
     row inst[s+k]. t_stop > 0 (approximate) also stops a pixel once its transmittance falls
     below t_stop (colour error <= t_stop). Each splat row is blended in SIMD windows of
-    XLANES pixels (`_xwindow`: the same floats as the per-pixel loop of `raster.py`).
+    XLANES pixels (`_xwindow`: the same floats as the per-pixel loop of `composite.py`).
     Returns the number of blends."""
     tw = x1 - x0
     th = y1 - y0

@@ -18,20 +18,12 @@ from ..camera import Camera
 from ..sh import sh_degree_from_coeffs
 from ..types import RasterOutput, RasterSettings
 from .binning import sort_and_bin
-from .preprocess import F_X, F_Y, NF, project_backward, project_forward
-from .raster import kernel_tile, raster_backward, raster_forward
+from .composite import kernel_tile, raster_backward, raster_forward
+from .project import F_X, F_Y, NF, camera_arrays, project_backward, project_forward
 
 
 def _np32(t: torch.Tensor) -> np.ndarray:
     return np.ascontiguousarray(t.detach().to(torch.float32).cpu().numpy())
-
-
-def camera_arrays(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(world_to_cam [4,4] f64, centre [3] f64, (fx, fy, cx, cy) f64) for the kernels."""
-    view = np.ascontiguousarray(camera.world_to_cam.detach().to(torch.float64).numpy())
-    R, t = view[:3, :3], view[:3, 3]
-    return view, np.ascontiguousarray(-R.T @ t), np.array(
-        [camera.fx, camera.fy, camera.cx, camera.cy], np.float64)
 
 
 @dataclass

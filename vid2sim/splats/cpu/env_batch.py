@@ -1,7 +1,7 @@
 """Batched env rendering: N cameras (one per env, possibly different scenes) in one call.
 
 `SceneBatch(scenes)` packs StaticScenes once (concatenated arrays, global cell rows);
-`.render(cameras, scene_ids)` renders every camera in one numba call (`frame.render_frames`),
+`.render(cameras, scene_ids)` renders every camera in one numba call (`env_frame.render_frames`),
 one whole frame per worker. `render_many(scenes, cameras, scene_ids)` does both (an actor
 stepping the same envs should keep its SceneBatch: packing copies the scenes).
 """
@@ -17,10 +17,9 @@ import torch
 
 from ..camera import Camera
 from ..types import RasterSettings
-from .function import camera_arrays
-from .preprocess import NF
-from .raster import kernel_tile
-from .frame import NS, render_frames
+from .composite import kernel_tile
+from .env_frame import NS, render_frames
+from .project import NF, camera_arrays
 
 
 @dataclass
@@ -30,7 +29,7 @@ class EnvFrames:
     rgb [N, H, W, 3] over the background; alpha [N, H, W]; depth [N, H, W] expected camera z
     (0 where empty); blends [N, H, W] int32 blended splats per pixel (None from FastBatch);
     stats [N, NS] float64
-    (splats in view, tile instances, blends, covered pixels: frame.S_* columns)."""
+    (splats in view, tile instances, blends, covered pixels: env_frame.S_* columns)."""
 
     rgb: torch.Tensor
     alpha: torch.Tensor

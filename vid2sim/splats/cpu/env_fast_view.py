@@ -6,7 +6,7 @@ returns (rgb [H, W, 3] uint8, depth [H, W] float32, +inf where the coverage is b
 bit for bit (tests/test_splats_fastview.py), in one numba call with no torch tensors and no
 Camera object. Each FastView keeps its own scratch (one per env; not thread-safe); the packed
 batch is only read, so many views may share it. `composite_view` blends exactly as
-`fastframe.composite_fast` (the same `blend_window`, same pixels) but finds the stopped pixels
+`env_fast_frame.composite_fast` (the same `blend_window`, same pixels) but finds the stopped pixels
 by scanning the tile every CHECK_EVERY splats instead of reducing a stop mask after every
 blended row (~8 % less CPU at the GoPro scene's expert poses).
 `finish_u8` is the fused finish; `finish_u8_reference` is the plain numpy version.
@@ -20,10 +20,10 @@ import numpy as np
 from numba import njit
 
 from ._bits import popc64
-from .fastbatch import TILE_SHIFT, T_STOP, FastBatch
-from .fastframe import (ALL_BITS, LANES, NPIX, NQ, Q_A, Q_B, Q_BL, Q_C, Q_CUT, Q_G, Q_O, Q_R,
-                        Q_X, Q_Y, Q_Z, ROW, blend_window, clear_tile, cull_project, depth_order,
-                        finish_tile, sort_bin)
+from .env_fast_batch import TILE_SHIFT, T_STOP, FastBatch
+from .env_fast_frame import (ALL_BITS, LANES, NPIX, NQ, Q_A, Q_B, Q_BL, Q_C, Q_CUT, Q_G, Q_O,
+                             Q_R, Q_X, Q_Y, Q_Z, ROW, blend_window, clear_tile, cull_project,
+                             depth_order, finish_tile, sort_bin)
 
 U64 = np.uint64
 CHECK_EVERY = 32  # splats between two scans of the tile for stopped pixels
@@ -79,7 +79,7 @@ def _scan_stopped(pix, tw, th, t_stop, rdone):
 @njit(cache=True, fastmath=True)
 def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pix, rdone, color,
                    alpha, depth):
-    """`fastframe.composite_fast`'s pixels (same blends in the same order) with the stopped
+    """`env_fast_frame.composite_fast`'s pixels (same blends in the same order) with the stopped
     pixels found by a scan of the tile every CHECK_EVERY splats instead of per blended row."""
     tw = x1 - x0
     th = y1 - y0
@@ -123,7 +123,7 @@ def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
 def render_view_u8(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
                    shift, near, far, cov_alpha, t_stop, t_fill, bg, empty_alpha, q, box, qs, bs,
                    keys, rows, inst, offsets, pix, rdone, color, alpha, depth_acc, rgb_u8, depth):
-    """`fastframe.render_fast_frame`'s phases for one camera (cells c0:c1; the composite by
+    """`env_fast_frame.render_fast_frame`'s phases for one camera (cells c0:c1; the composite by
     `composite_view`), finished by `finish_u8`. Scratch: q / qs [G, NQ], box / bs [G, 4], keys / rows [2, G], inst [M]
     (grown when short: the returned array), offsets [T+1], pix [5 NPIX], rdone [32],
     color [H, W, 3], alpha / depth_acc [H, W]; outputs rgb_u8 [H, W, 3], depth [H, W]."""

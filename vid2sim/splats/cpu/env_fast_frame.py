@@ -1,9 +1,9 @@
 """Approximate env frames at RL rates: one 128x72 frame in ~2 ms of one core.
 
-NOT exact (the exact env path is `frame.py`); what is traded, each measured as PSNR/SSIM
+NOT exact (the exact env path is `env_frame.py`); what is traded, each measured as PSNR/SSIM
 against the exact render by benchmarks/env_render.py:
 
-- colour: one RGB per splat, no view-dependent SH (`simready.sim_ready` bakes each splat's
+- colour: one RGB per splat, no view-dependent SH (`env_simready.sim_ready` bakes each splat's
   blend-weighted mean colour over robot views into the DC term);
 - opaque early stop: a pixel stops once its transmittance T falls below t_stop, and its
   colour is renormalised acc / (1 - T) with alpha 1 (the remaining splats are assumed to look
@@ -20,7 +20,7 @@ and each splat row is blended in windows of LANES pixels from its clipped box st
 branch per pixel (pixels outside the ellipse or already stopped get weight 0), which LLVM
 vectorises (8 float32 lanes: one AVX2 register).
 
-Per frame in one thread: cull culling cells (bounding spheres, `static_kernels.sphere_outside`)
+Per frame in one thread: cull culling cells (bounding spheres, `env_scene_kernels.sphere_outside`)
 and project only the splats of the cells that survive, straight into a compact list; radix
 sort by depth; bin into small tiles; composite tile by tile front to back (per-pixel and
 per-tile early stop); finish over the background. `render_fast_frames` runs N cameras
@@ -37,8 +37,8 @@ from numba import njit, prange
 from ._bits import popc64, prefetch_row
 from ._geom import LOWPASS, jac_limits
 from ._sched import fetch_add, new_counter
-from .frame import finish_env
-from .static_kernels import frustum_planes, sphere_outside
+from .env_frame import finish_env
+from .env_scene_kernels import frustum_planes, sphere_outside
 
 F32 = np.float32
 U64 = np.uint64
@@ -317,7 +317,7 @@ def blend_window(pix, pb, d0, last, hca, bdy, hcdy, ct, o, c0, c1, c2, c3, t_sto
     """Blend one splat into `lanes` pixels pix[pb + j] of a row (j <= last: inside its box;
     d0: x offset of lane 0 from the splat centre), branch-free so that it vectorises.
     Returns (blends, bits j of the lanes whose T fell below t_stop). The one blend of both
-    fast composites (`composite_fast`, `fastview.composite_view`); inlined, so a caller that
+    fast composites (`composite_fast`, `env_fast_view.composite_view`); inlined, so a caller that
     ignores the counts compiles to the pixel updates alone."""
     nb = 0
     stop = U64(0)

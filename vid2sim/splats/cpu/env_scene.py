@@ -11,7 +11,7 @@ Exact mode (default): images equal `rasterize` up to float rounding; `raw.radii`
 `raw.means2d` cover only the splats that were projected (culled cells read as 0), and
 `raw.grad2d` / `raw.absgrad` are None.
 Env LOD (`StaticSceneConfig(lod=True)`, opt-in, NOT part of the exact contract; see
-docs/splat_renderer.md "Env LOD" and `lod.py`): distant octree nodes are drawn as one merged
+docs/splat_renderer.md "Env LOD" and `env_lod.py`): distant octree nodes are drawn as one merged
 Gaussian each; merged Gaussians have no model index, so their splats read radii 0.
 """
 
@@ -31,12 +31,11 @@ from ..model import GaussianModel
 from ..sh import C0
 from ..types import RasterOutput, RasterSettings, RenderOutput
 from .binning import sort_and_bin
-from .function import camera_arrays
-from .lod import LodTree, build_lod, select_lod
-from .preprocess import NF
-from .raster import kernel_tile, raster_forward
-from .static_kernels import (cull_cells, finish_images, project_static, scatter_visible,
-                             sigma_cuts)
+from .composite import kernel_tile, raster_forward
+from .env_lod import LodTree, build_lod, select_lod
+from .env_scene_kernels import (cull_cells, finish_images, project_static, scatter_visible,
+                                sigma_cuts)
+from .project import NF, camera_arrays
 
 ALPHA_MIN = 1.0 / 255.0
 

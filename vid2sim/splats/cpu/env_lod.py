@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .static_kernels import frustum_planes, sphere_outside, sigma_cuts
+from .env_scene_kernels import frustum_planes, sphere_outside, sigma_cuts
 
 MAX_LEVEL = 10  # Morton codes have 10 bits per axis
 

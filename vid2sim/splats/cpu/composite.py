@@ -15,8 +15,8 @@ from numba import njit, prange
 
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 
-from .preprocess import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X,
-                         F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_C, G_MX, G_MY, G_O, G_R, G_Z, NG)
+from .project import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X,
+                      F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_C, G_MX, G_MY, G_O, G_R, G_Z, NG)
 
 F32 = np.float32
 S_MAX = F32(4.5)

@@ -1,4 +1,6 @@
-"""Per-splat forward (projection, culling, colour, normal, pixel box) and backward kernels.
+"""Per-splat projection: forward (projection, culling, colour, normal, pixel box) and
+backward kernels of the differentiable renderer, and what every path shares: the projected
+record's columns (F_*), `camera_arrays`, `view_parts`, `sigma_cut`.
 
 Forward reads the model arrays for a candidate list `idx` and writes one row per candidate;
 backward reads per-visible-splat 2D gradients and writes the model gradients.
@@ -8,6 +10,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 from numba import njit, prange
 
 from ._geom import (conic_vjp, cov3d, jac_limits, mm3, pixel_box, project_cov, quat_rot,
@@ -22,6 +25,15 @@ CUT_MARGIN = 1e-3  # slack on the per-splat sigma cutoff used only to bound tile
 # Columns of the per-candidate float output `fo` [C, NF].
 F_X, F_Y, F_A, F_B, F_C, F_O, F_CUT, F_Z, F_R, F_G, F_BL, F_NX, F_NY, F_NZ = range(14)
 NF = 16
+
+
+def camera_arrays(camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(world_to_cam [4,4] f64, centre [3] f64, (fx, fy, cx, cy) f64) of a Camera for the
+    kernels."""
+    view = np.ascontiguousarray(camera.world_to_cam.detach().double().numpy())
+    R, t = view[:3, :3], view[:3, 3]
+    return view, np.ascontiguousarray(-R.T @ t), np.array(
+        [camera.fx, camera.fy, camera.cx, camera.cy], np.float64)
 
 
 @njit(cache=True)

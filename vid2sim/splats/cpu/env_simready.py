@@ -15,9 +15,9 @@ splats that carry the image there:
    least significant ones on the scenes measured).
 3. Optionally (`bake_colour`) replace each kept splat's view-dependent SH colour by its
    blend-weighted mean colour over the same views (SH degree 0): what the approximate
-   `fastbatch.FastBatch` renders.
+   `env_fast_batch.FastBatch` renders.
 4. Optionally (`fit_iterations` > 0) fit the kept splats to exact renders of the full scene
-   from the same views (`simfit.fit_to_views`): recovers most of what harder pruning loses.
+   from the same views (`env_simfit.fit_to_views`): recovers most of what harder pruning loses.
 5. A per-pixel blend cap / early stop is a render-time setting (`SceneBatch.render`).
 """
 
@@ -36,13 +36,13 @@ from ..camera import Camera, look_at
 from ..model import GaussianModel
 from ..sh import C0
 from ..types import RasterSettings
-from .batch import SceneBatch
-from .frame import NS, render_frame
-from .function import camera_arrays
-from .preprocess import F_BL, F_R, NF
-from .raster import kernel_tile
-from .simfit import FitConfig, fit_to_views
-from .static import StaticScene
+from .env_batch import SceneBatch
+from .env_frame import NS, render_frame
+from .project import camera_arrays
+from .project import F_BL, F_R, NF
+from .composite import kernel_tile
+from .env_simfit import FitConfig, fit_to_views
+from .env_scene import StaticScene
 
 # The robot camera (vid2sim.formats.robot.ROBOT, which the envs' CameraConfig also reads): 128x72,
 # Unity's default 60 deg vertical fov (the paper gives only the 1280x720 sensor), centred
