@@ -52,7 +52,7 @@ def registry(args) -> str:
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
-                   student=student)
+                   max_samples=args.max_samples, eviction=args.eviction, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -134,6 +134,8 @@ def main() -> None:
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
+    ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
+    ap.add_argument("--eviction", default="oldest", choices=["oldest", "even"], help="over the cap: what goes")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)
