@@ -152,4 +152,4 @@ def test_scene_json_records_the_anonymiser() -> None:
                             clip_end_s=1.0, scale_source="capture_height", config=PipelineConfig())
     dec = scene["pipeline"]["config"]["decode"]
     assert dec["faces"]["detector"] == "centerface" and dec["faces"]["score_threshold"] == 0.0
-    assert dec["plates"]["detector"] == "text_rows" and dec["plates"]["min_char_px"] == 6
+    assert dec["plates"]["detector"] == "text_rows" and dec["plates"]["min_char_px"] == 4

@@ -25,7 +25,7 @@ from vid2sim.ranges import checked
 @dataclass(frozen=True)
 class PlateConfig:
     detector: str = "text_rows"  # text_rows | none
-    min_char_px: int = 6  # smallest character height (a ~40 px wide European plate)
+    min_char_px: int = 4  # smallest character height (a ~40 px wide plate has ~5 px characters)
     max_char_px: int = 80  # largest character height (a plate filling a close-up frame)
     min_chars: int = 4  # fewest characters in a row that counts as a plate
     max_gap: float = 1.2  # largest gap between neighbouring characters, in character heights
@@ -34,7 +34,7 @@ class PlateConfig:
     height_ratio: float = 1.33  # neighbours' heights differ by at most this factor
     block_px: int = 15  # adaptive-threshold window
     contrast: int = 12  # a character is this much darker (or lighter) than its neighbourhood
-    scale: float = 2.0  # detect on a copy enlarged by this factor (characters of 6 px become 12)
+    scale: float = 3.0  # detect on a copy enlarged by this factor (characters of 4 px become 12)
     pad: float = 0.25  # grow each box by this fraction on every side before blurring
 
 
