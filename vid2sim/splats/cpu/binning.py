@@ -29,7 +29,7 @@ def _float_key(b):
     return b ^ np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else b ^ np.uint32(0x80000000)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _unpack(q):
     """Tile rectangle (tx0, ty0, tx1, ty1) of a packed uint64."""
     return (np.int64(q & U16), np.int64((q >> 16) & U16), np.int64((q >> 32) & U16),
@@ -267,7 +267,9 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
     rows, rects = _radix_sort_serial(keys, rows, rects)
     counts = np.zeros(n_tiles + 1, np.int64)
     for k in range(n):
-        tx0, ty0, tx1, ty1 = _unpack(rects[k])
+        q = rects[k]  # as _unpack, written out: an inlined call compiles this loop differently
+        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
+        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
         for ty in range(ty0, ty1 + 1):
             for tx in range(tx0, tx1 + 1):
                 counts[ty * tiles_x + tx + 1] += 1
@@ -277,7 +279,9 @@ def _sort_and_bin_serial(fo, box, n_rows, tile, tiles_x, n_tiles, want_pos):
     pos = np.empty(counts[n_tiles] if want_pos else 0, np.int64)
     fill = counts[:n_tiles].copy()
     for k in range(n):
-        tx0, ty0, tx1, ty1 = _unpack(rects[k])
+        q = rects[k]  # as _unpack, written out: an inlined call compiles this loop differently
+        tx0, ty0 = np.int64(q & U16), np.int64((q >> 16) & U16)
+        tx1, ty1 = np.int64((q >> 32) & U16), np.int64(q >> 48)
         r = rows[k]
         j = row_start[r] if want_pos else 0
         for ty in range(ty0, ty1 + 1):
