@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 from common import Run, add_run_args  # noqa: E402
 from street_registry import build  # noqa: E402
 
-from vid2sim.training.config import DistillConfig, TrainConfig  # noqa: E402
+from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
 from vid2sim.training.distill import train_distill  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
@@ -135,7 +135,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
-    ap.add_argument("--eviction", default="oldest", choices=["oldest", "even"], help="over the cap: what goes")
+    ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

@@ -43,6 +43,9 @@ class SACConfig:
     # demonstrations alone, once, before SAC's own actions are used (avoids starting from a random actor)
 
 
+EVICTIONS = ("oldest", "even")  # what the distillation dataset drops over its cap (training/distill.py)
+
+
 @checked
 @dataclass
 class DistillConfig:
@@ -66,8 +69,8 @@ class DistillConfig:
     def __post_init__(self) -> None:
         if isinstance(self.student, dict):
             self.student = StudentConfig(**self.student)
-        if self.eviction not in ("oldest", "even"):
-            raise ValueError(f"DistillConfig.eviction: {self.eviction!r} is not one of 'oldest', 'even'")
+        if self.eviction not in EVICTIONS:
+            raise ValueError(f"DistillConfig.eviction: {self.eviction!r} is not one of {EVICTIONS}")
 
 
 @checked

@@ -38,7 +38,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv
 from torch.utils.tensorboard import SummaryWriter
 
-from vid2sim.training.config import TrainConfig
+from vid2sim.training.config import EVICTIONS, TrainConfig
 from vid2sim.training.rollouts import EnvSpec
 from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
 from vid2sim.training.student import StudentPolicy, random_shift
@@ -65,9 +65,6 @@ class Batch:
     def load(cls, path: Path) -> "Batch":
         with np.load(path) as z:
             return cls(z["frames"], z["vectors"], z["actions"])
-
-
-EVICTIONS = ("oldest", "even")
 
 
 class Dataset:
