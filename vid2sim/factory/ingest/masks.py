@@ -39,7 +39,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from vid2sim.factory.ingest.decode import kept_images
-from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, finished_key
 from vid2sim.ranges import checked
 
 STAGE = "masks"
@@ -302,14 +302,12 @@ def work(conf: MasksConfig, decode_dir: Path, segmenter: Optional[Segmenter] = N
     """Masks of every frame of a finished decode output: keyed by the config, the decode key
     and the segmenter."""
     decode_dir = Path(decode_dir)
-    rec = load_record(decode_dir)
-    if rec is None:
-        raise StageError(STAGE, "missing_input", f"{decode_dir}: no finished decode output (stage.json)")
+    decode_key = finished_key(decode_dir, STAGE, f"{decode_dir}: no finished decode output (stage.json)")
     files = kept_images(decode_dir)
     if len(files) < 2:
         raise StageError(STAGE, "too_few_frames", f"{decode_dir}: {len(files)} images")
     seg_id = conf.segmenter_path or (type(segmenter).__name__ if segmenter is not None else None)
-    return StageWork(STAGE, STAGE_VERSION, conf, (rec.key, seg_id),
+    return StageWork(STAGE, STAGE_VERSION, conf, (decode_key, seg_id),
                      lambda out_dir: build(conf, files, out_dir, segmenter, seg_id))
 
 

@@ -110,6 +110,15 @@ def load_record(out_dir: Path) -> Optional[StageRecord]:
         return None
 
 
+def finished_key(out_dir: Path, stage: str, detail: str) -> str:
+    """Key of the finished stage output `out_dir` that `stage` reads; StageError `missing_input`
+    (with `detail`) when the folder holds no marker."""
+    rec = load_record(out_dir)
+    if rec is None:
+        raise StageError(stage, "missing_input", detail)
+    return rec.key
+
+
 def is_done(out_dir: Path, key: str) -> bool:
     rec = load_record(out_dir)
     return rec is not None and rec.key == key

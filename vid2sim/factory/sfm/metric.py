@@ -31,7 +31,7 @@ from scipy.spatial import cKDTree
 from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
-from vid2sim.factory.runtime.stage_cache import StageError, StageWork, load_record
+from vid2sim.factory.runtime.stage_cache import StageError, StageWork, finished_key
 from vid2sim.ranges import checked
 
 STAGE = "metric"
@@ -384,10 +384,8 @@ def work(conf: MetricConfig, sfm_dir: Path, frames_dir: Optional[Path] = None) -
     folder recorded in the sfm `quality.json` is used.
     """
     sfm_dir = Path(sfm_dir)
-    rec_in = load_record(sfm_dir)
-    if rec_in is None:
-        raise StageError(STAGE, "missing_input", f"{sfm_dir} is not a finished sfm output")
-    return StageWork(STAGE, STAGE_VERSION, conf, (rec_in.key,),
+    sfm_key = finished_key(sfm_dir, STAGE, f"{sfm_dir} is not a finished sfm output")
+    return StageWork(STAGE, STAGE_VERSION, conf, (sfm_key,),
                      lambda out_dir: build(conf, sfm_dir, out_dir, frames_dir))
 
 
