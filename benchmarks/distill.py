@@ -55,6 +55,11 @@ def distill_config(args) -> DistillConfig:
                    max_samples=args.max_samples, eviction=args.eviction, student=student)
 
 
+def teacher_route(args) -> dict:
+    """Training-env overrides for the teacher's route (the comfortable one when --expert-comfort > 0)."""
+    return {"episode": {"expert_comfort": args.expert_comfort}} if args.expert_comfort > 0 else {}
+
+
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
     row = {}
     for k in metrics:
@@ -70,7 +75,7 @@ def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
-                                     "fidelity": args.fidelity},
+                                     "fidelity": args.fidelity, **teacher_route(args)},
                          distill=distill_config(args))
     t0, cpu0 = time.perf_counter(), cpu_seconds()
     result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
@@ -112,7 +117,8 @@ def run_study_bench(args, run: Run) -> None:
     config = StudyConfig(registry=reg, out_dir=str(args.root / f"study_{args.steps}{args.tag}"),
                          counts=[int(c) for c in args.counts.split(",")], seeds=len(args.seeds),
                          total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
-                         env_kwargs={"training": True, "fidelity": args.fidelity}, stuck_steps=10,
+                         env_kwargs={"training": True, "fidelity": args.fidelity, **teacher_route(args)},
+                         stuck_steps=10,
                          distill=distill_config(args), eval_max_steps=args.eval_max_steps or None)
     rows = run_study(config)
     for n, agg in aggregate(rows).items():
@@ -136,6 +142,8 @@ def main() -> None:
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
+    ap.add_argument("--expert-comfort", type=float, default=0.0,
+                    help="m the teacher's route prefers to keep from blocked cells (0: the shortest route)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

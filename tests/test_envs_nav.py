@@ -232,6 +232,23 @@ def test_expert_reaches_goals_and_episode_record(registry):
     assert ends == ["success", "success"]
 
 
+def test_comfortable_expert_route_leaves_spl_reference_alone(registry):
+    """`episode={"expert_comfort": ...}` (a JSON-friendly nested override) changes the expert's
+    route only: the episode, its obstacles and SPL's shortest length stay those of the plain env."""
+    plain, comfy = make(registry, training=False), make(registry, training=False, episode={"expert_comfort": 0.9})
+    assert comfy.unwrapped.config.episode.expert_comfort == 0.9
+    assert comfy.unwrapped.config.episode.clearance == plain.unwrapped.config.episode.clearance
+    for seed in range(3):
+        plain.reset(seed=seed)
+        comfy.reset(seed=seed)
+        p, c = plain.unwrapped, comfy.unwrapped
+        assert c.shortest == pytest.approx(p.shortest)
+        np.testing.assert_allclose(c.actors.shortest_path, p.expert_path())
+        np.testing.assert_allclose(c.actors.obstacle_xy(), p.actors.obstacle_xy())
+        assert len(c.expert_path()) >= 2 and np.allclose(c.expert_path()[-1], p.expert_path()[-1])
+        assert all(c.actors.route_planner.is_free(x, y) for x, y in c.expert_path())
+
+
 def test_expert_steers_off_arcs_that_leave_the_map(registry):
     """Facing the map's edge, the expert's steering keeps its checked arc on the walkable map."""
     env = make(registry, training=False)

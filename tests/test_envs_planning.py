@@ -143,3 +143,45 @@ def test_shortcut_kernel_equals_the_reference_loop():
     assert n_long >= 5
     one = np.array([[1.0, 1.0]])
     np.testing.assert_array_equal(planner.shortcut(one), planner.shortcut_reference(one))
+
+
+def _room(planner: GridPlanner, path: np.ndarray) -> np.ndarray:
+    """Distance in metres from each waypoint [K, 2] to the nearest blocked cell centre [K]."""
+    blocked = np.argwhere(planner.raw == 0)  # [B, 2] (row, col)
+    centres = planner.to_world(blocked[:, 0], blocked[:, 1]) + planner.resolution / 2  # [B, 2]
+    return np.min(np.linalg.norm(path[:, None, :] - centres[None], axis=2), axis=1)
+
+
+def corridor_with_pillar() -> Grid:
+    """A 3 m wide, 8 m long corridor (walls around) with a 0.4 m pillar against the lower wall."""
+    g = np.zeros((32, 82), np.uint8)
+    g[1:31, 1:81] = 1  # free 3.0 m x 8.0 m inside a one-cell wall
+    g[1:5, 38:42] = 0  # pillar at x 3.8-4.2 m, y 0.1-0.5 m
+    return Grid(g, np.zeros(2), 0.1)
+
+
+def test_comfortable_route_keeps_its_distance_where_there_is_room():
+    p = GridPlanner(corridor_with_pillar(), clearance=0.45, comfort=0.9)
+    start, goal = (0.8, 0.7), (7.3, 0.7)  # both near the lower wall
+    shortest = p.plan(start, goal)
+    comfy = p.plan(start, goal, comfortable=True)
+    assert path_length(comfy) > path_length(shortest)  # a longer way round ...
+    assert path_length(comfy) < 1.5 * path_length(shortest)
+    middle = (comfy[:, 0] > 2.0) & (comfy[:, 0] < 6.0)  # ... that keeps away from the pillar and walls
+    assert _room(p, comfy[middle]).min() >= 0.85
+    assert _room(p, shortest[(shortest[:, 0] > 2.0) & (shortest[:, 0] < 6.0)]).min() < 0.6
+    assert np.all([p.is_free(x, y) for x, y in comfy])
+    # without a comfort distance (or asked for the shortest) the plans are the same
+    plain = GridPlanner(corridor_with_pillar(), clearance=0.45)
+    np.testing.assert_allclose(plain.plan(start, goal, comfortable=True), shortest)
+
+
+def test_comfortable_route_squeezes_through_a_narrow_gap():
+    g = np.ones((40, 40), np.uint8)
+    g[:, 20] = 0  # wall at x = 2.0 .. 2.1 with a 1.2 m gap (needs 2 x 0.45, not 2 x 0.9)
+    g[14:26, 20] = 1
+    p = GridPlanner(Grid(g, np.zeros(2), 0.1), clearance=0.45, comfort=0.9)
+    route = p.plan((0.5, 2.0), (3.5, 2.0), comfortable=True)
+    assert route is not None and np.all([p.is_free(x, y) for x, y in route])
+    at_gap = route[(route[:, 0] > 1.95) & (route[:, 0] < 2.15)]
+    assert np.all(np.abs(at_gap[:, 1] - 2.0) < 0.15)  # through the gap's middle

@@ -2,7 +2,9 @@
 
 `EpisodeActors.spawn` places 0-5 obstacles on the A* corridor (envs-assets' library), checks
 that a path around them still exists (obstacles that would cut the route are dropped, last
-first), adds the crowd, and keeps the obstacle-aware expert path. `draw_over` draws the
+first), adds the crowd, and keeps the obstacle-aware shortest path (SPL's reference) and the
+expert's path (the comfortable route when `EpisodeConfig.expert_comfort` is set, see
+`planning`). `draw_over` draws the
 actors into the camera image by z-buffer against the splat depth.
 """
 
@@ -39,27 +41,34 @@ class EpisodeActors:
         self.client_id = client_id
         self.obstacles: Optional[ObstacleSet] = None
         self.crowd: Optional[Crowd] = None
-        self.expert_path: Optional[np.ndarray] = None  # [K, 2]
+        self.shortest_path: Optional[np.ndarray] = None  # [K, 2] around the obstacles
+        self.expert_path: Optional[np.ndarray] = None  # [K, 2] the route the expert follows
         self.route_planner: Optional[GridPlanner] = None  # the map with the static obstacles blocked
         self.goal: Optional[tuple[float, float]] = None
 
     def spawn(self, grid: WalkableGrid, planner: GridPlanner, path: np.ndarray, rng: np.random.Generator,
-              obstacles: ObstacleConfig, pedestrians: int, pre_inflated: float = 0.0) -> None:
+              obstacles: ObstacleConfig, pedestrians: int, pre_inflated: float = 0.0,
+              comfort: float = 0.0) -> None:
         """Place this episode's actors (call `remove` first when re-using the client).
 
         pre_inflated: metres the scene's map was already shrunk by (a factory map is inflated by
         its robot radius, so `planner.clearance` is smaller there); the obstacles placed here
         are not in that map, so their footprints get it added back: the expert keeps the same
-        distance from an obstacle on a factory scene as on a ground-truth one."""
+        distance from an obstacle on a factory scene as on a ground-truth one. comfort: the
+        expert route's preferred distance from anything blocked, in the map's convention (0: the
+        expert follows the shortest path)."""
         placements = place_on_corridor(path, rng, obstacles, is_walkable=planner.is_free)
         start, goal = (float(path[0, 0]), float(path[0, 1])), (float(path[-1, 0]), float(path[-1, 1]))
         while True:
-            self.route_planner = self._route_planner(grid, planner.clearance, placements, pre_inflated)
+            self.route_planner = self._route_planner(grid, planner.clearance, placements, pre_inflated,
+                                                     comfort)
             route = self.route_planner.plan(start, goal)
             if route is not None or not placements:
                 break
             placements = placements[:-1]
-        self.expert_path = route if route is not None else path
+        self.shortest_path = route if route is not None else path
+        comfortable = self.route_planner.plan(start, goal, comfortable=True) if route is not None else None
+        self.expert_path = comfortable if comfortable is not None else self.shortest_path
         self.goal = goal
         self.obstacles = ObstacleSet(self.client_id, placements)
         self.crowd = (Crowd(planner, pedestrians, rng, self.client_id, avoid=[start, goal])
@@ -67,7 +76,7 @@ class EpisodeActors:
 
     @staticmethod
     def _route_planner(grid: WalkableGrid, clearance: float, placements: Sequence[Placement],
-                       pre_inflated: float = 0.0) -> GridPlanner:
+                       pre_inflated: float = 0.0, comfort: float = 0.0) -> GridPlanner:
         """A* planner on the map with the static obstacles' footprints blocked."""
         static = [p for p in placements if not p.dynamic]
         occ = occupancy(static, grid.origin, grid.resolution, grid.grid.shape)  # [H, W] bool
@@ -75,14 +84,14 @@ class EpisodeActors:
             grow = OBSTACLE_MARGIN + max(pre_inflated, 0.0)
             occ = ndimage.distance_transform_edt(~occ) <= grow / grid.resolution
         blocked = WalkableGrid((grid.grid > 0) & ~occ, grid.origin, grid.resolution)
-        return GridPlanner(blocked, clearance=clearance)
+        return GridPlanner(blocked, clearance=clearance, comfort=comfort)
 
     def replan(self, x: float, y: float) -> Optional[np.ndarray]:
         """A* path [K, 2] from (x, y) to the episode's goal around the static obstacles (it becomes
         the expert path), or None when there is none from there (the expert path stays)."""
         if self.route_planner is None or self.goal is None:
             return None
-        route = self.route_planner.plan((x, y), self.goal)
+        route = self.route_planner.plan((x, y), self.goal, comfortable=True)
         if route is not None:
             self.expert_path = route
         return route
@@ -136,4 +145,4 @@ class EpisodeActors:
         if self.crowd is not None:
             self.crowd.remove()
         self.obstacles = self.crowd = None
-        self.expert_path = self.route_planner = self.goal = None
+        self.shortest_path = self.expert_path = self.route_planner = self.goal = None

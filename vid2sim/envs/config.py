@@ -115,6 +115,10 @@ class EpisodeConfig:
     # its yaw and is not sent into spurs narrower than it can turn in (its turning circle is
     # 1.4 m); a map with no such cell falls back to `clearance`
     end_clearance: float = 0.6
+    # m the expert's route prefers to keep from blocked cells (same convention; 0 or <= clearance:
+    # the shortest path): cells closer cost more to cross (envs/planning.py), so the route runs
+    # down the middle of a narrow sidewalk and a driver that strays from it still has room
+    expert_comfort: float = 0.0
     start_yaw_noise_deg: float = 15.0  # deg, start heading: towards the path, plus up to this much noise
     pedestrians: tuple[int, int] = (1, 4)  # inclusive range per SocialNav episode (PointNav: none)
     proximity_radius: float = 0.2  # m, for the proximity-aware SNS

@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict, deque
-from dataclasses import replace
+from dataclasses import is_dataclass, replace
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -140,9 +140,11 @@ class NavEnv(gym.Env):
         lo, hi = c.episode.pedestrians
         peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
         self.actors = EpisodeActors(self.world.physics.client)
+        inflation = self.world.assets.walkable_inflation
+        comfort = max(0.0, c.episode.expert_comfort - inflation) if c.episode.expert_comfort > 0 else 0.0
         self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds,
-                          pre_inflated=self.world.assets.walkable_inflation)
-        self.shortest = path_length(self.actors.expert_path)
+                          pre_inflated=inflation, comfort=comfort)
+        self.shortest = path_length(self.actors.shortest_path)
         self.augmenter.reset(rng)
         self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)
         self.jitter = Jitter.sample(c.camera, rng) if c.use_jitter else Jitter.none()
@@ -329,7 +331,8 @@ class NavEnv(gym.Env):
                              proximity_steps=self.proximity_steps, steps=self.steps, end=end)
 
     def expert_path(self) -> np.ndarray:
-        """A* waypoints [K, 2] the scripted expert follows (obstacles avoided)."""
+        """A* waypoints [K, 2] the scripted expert follows (obstacles avoided; the comfortable route
+        when `EpisodeConfig.expert_comfort` is set)."""
         return self.actors.expert_path
 
     def replan_expert_path(self) -> Optional[np.ndarray]:
@@ -350,5 +353,11 @@ class NavEnv(gym.Env):
                 "pedestrians": self.actors.pedestrian_xy()}
 
 
-def _with_overrides(conf: EnvConfig, overrides: dict[str, Any]) -> EnvConfig:
-    return replace(conf, **overrides) if overrides else conf
+def _with_overrides(conf: Any, overrides: dict[str, Any]) -> Any:
+    """conf with fields replaced; a dict given for a nested config replaces fields of it (so a
+    JSON-saved run can set e.g. `episode={"expert_comfort": 0.8}`)."""
+    if not overrides:
+        return conf
+    nested = {k: _with_overrides(getattr(conf, k), v) for k, v in overrides.items()
+              if isinstance(v, dict) and is_dataclass(getattr(conf, k, None))}
+    return replace(conf, **{**overrides, **nested})

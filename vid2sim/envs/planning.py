@@ -7,6 +7,13 @@ along +x, rows along +y; `resolution` metres per cell. Points outside the grid a
 The search is 8-connected with metric step costs (resolution, resolution x sqrt 2); a diagonal
 step is allowed only when both side cells are free (no corner cutting). Clearance inflation
 removes cells closer than `clearance` metres to a blocked cell or to the grid border.
+
+A planner with a `comfort` distance (> clearance) also plans comfortable routes
+(`plan(..., comfortable=True)`): a step into a free cell closer than `comfort` to anything blocked
+costs up to 1 + COMFORT_WEIGHT times its length (linearly from `comfort` down to `clearance`), and
+the line-of-sight pruning keeps to cells at least `comfort` away or on the searched cell path, so
+the route runs down the middle of a sidewalk narrower than 2 x comfort instead of grazing the
+clearance boundary, and still squeezes through a gap when there is no other way.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from scipy import ndimage
 from vid2sim.formats.walkable import WalkableGrid
 
 SQRT2 = math.sqrt(2.0)
+COMFORT_WEIGHT = 3.0  # extra step-cost factor of a free cell right at the clearance boundary
 
 
 class GridPlanner:
@@ -35,12 +43,14 @@ class GridPlanner:
     """
 
     def __init__(self, grid: WalkableGrid, clearance: float = 0.0, snap: float = 0.5,
-                 smooth: bool = True) -> None:
+                 smooth: bool = True, comfort: float = 0.0) -> None:
         self.raw = np.asarray(grid.grid, np.uint8)  # [H, W]
         self.origin = np.asarray(grid.origin, np.float64).reshape(2)
         self.resolution = float(grid.resolution)
         self.clearance = float(clearance)
         self.free = inflate(self.raw > 0, self.clearance / self.resolution)  # [H, W] bool
+        self.comfort = max(float(comfort), self.clearance)
+        self._weight, self._roomy = self._comfort_layers()  # [H, W] float, [H, W] bool
         self.snap = float(snap)
         self.smooth = smooth
         # nearest free cell for every cell (for snapping)
@@ -49,6 +59,16 @@ class GridPlanner:
             self._nearest = idx  # [2, H, W]
         else:
             self._nearest = None
+
+    def _comfort_layers(self) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+        """Step-cost factor of every cell [H, W] and the cells at least `comfort` from anything
+        blocked [H, W]; (None, None) without a comfort distance."""
+        if self.comfort <= self.clearance:
+            return None, None
+        padded = np.pad(self.raw > 0, 1, constant_values=False)
+        room = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * self.resolution  # [H, W] m
+        tight = np.clip((self.comfort - room) / (self.comfort - self.clearance), 0.0, 1.0)
+        return 1.0 + COMFORT_WEIGHT * tight, room > self.comfort
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -109,30 +129,41 @@ class GridPlanner:
             return None
         return rr, cc
 
-    def plan(self, start_xy: tuple[float, float], goal_xy: tuple[float, float]) -> Optional[np.ndarray]:
-        """A* path as world waypoints [K, 2] (exact start first, exact goal last) or None."""
+    def plan(self, start_xy: tuple[float, float], goal_xy: tuple[float, float],
+             comfortable: bool = False) -> Optional[np.ndarray]:
+        """A* path as world waypoints [K, 2] (exact start first, exact goal last) or None; the
+        comfortable route (see the module docs) when asked and the planner has a comfort distance."""
         s = self.snap_cell(*start_xy)
         g = self.snap_cell(*goal_xy)
         if s is None or g is None:
             return None
-        cells = astar(self.free, s, g)
+        comfortable = comfortable and self._weight is not None
+        cells = astar(self.free, s, g, self._weight if comfortable else None)
         if cells is None:
             return None
         pts = self.to_world(cells[:, 0], cells[:, 1])  # [K, 2]
         pts[0] = start_xy
         pts[-1] = goal_xy
-        return self.shortcut(pts) if self.smooth else pts
+        if not self.smooth:
+            return pts
+        if not comfortable:
+            return self.shortcut(pts)
+        lane = self._roomy.copy()  # [H, W] bool: roomy cells and the searched path itself
+        lane[cells[:, 0], cells[:, 1]] = True
+        return self.shortcut(pts, lane)
 
     def line_free(self, a: np.ndarray, b: np.ndarray) -> bool:
         """True when the segment a-b stays on free cells (sampled every resolution / 4)."""
         return _segment_free(self.free, self.origin[0], self.origin[1], self.resolution,
                              float(a[0]), float(a[1]), float(b[0]), float(b[1]))
 
-    def shortcut(self, pts: np.ndarray) -> np.ndarray:
-        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2], densified every
-        0.25 m (`_shortcut_keep`, one numba call; `shortcut_reference` is the plain loop)."""
+    def shortcut(self, pts: np.ndarray, free: Optional[np.ndarray] = None) -> np.ndarray:
+        """Greedy (forward) line-of-sight pruning of waypoints [K, 2] -> [K', 2] over `free` cells
+        (default: the planner's), densified every 0.25 m (`_shortcut_keep`, one numba call;
+        `shortcut_reference` is the plain loop)."""
         pts = np.ascontiguousarray(pts, np.float64)
-        keep = _shortcut_keep(self.free, self.origin[0], self.origin[1], self.resolution, pts)
+        free = self.free if free is None else free
+        keep = _shortcut_keep(free, self.origin[0], self.origin[1], self.resolution, pts)
         return densify(pts[keep], 0.25)
 
     def shortcut_reference(self, pts: np.ndarray) -> np.ndarray:
@@ -214,10 +245,12 @@ def densify(pts: np.ndarray, step: float) -> np.ndarray:
 
 
 @numba.njit(cache=True)
-def _search(free: np.ndarray, sr: int, sc: int, gr: int, gc: int) -> tuple[np.ndarray, np.ndarray]:
+def _search(free: np.ndarray, weight: np.ndarray, sr: int, sc: int, gr: int, gc: int
+            ) -> tuple[np.ndarray, np.ndarray]:
     """Best-first search from (sr, sc): A* with the octile heuristic towards (gr, gc), stopping
-    there, or a full Dijkstra when gr < 0. Returns (distance in cells [H, W], parent flat index
-    [H, W], -1 = none)."""
+    there, or a full Dijkstra when gr < 0. A step into a cell costs its length times the cell's
+    weight [H, W] (>= 1, so the heuristic stays admissible). Returns (cost in cells [H, W],
+    parent flat index [H, W], -1 = none)."""
     H, W = free.shape
     dist = np.full((H, W), np.inf)
     parent = np.full((H, W), -1, np.int64)
@@ -241,7 +274,7 @@ def _search(free: np.ndarray, sr: int, sc: int, gr: int, gc: int) -> tuple[np.nd
                 continue
             if k >= 4 and not (free[rr, c] and free[r, cc]):
                 continue  # no corner cutting
-            nd = dist[r, c] + cost8[k]
+            nd = dist[r, c] + cost8[k] * weight[rr, cc]
             if nd < dist[rr, cc]:
                 dist[rr, cc] = nd
                 parent[rr, cc] = cur
@@ -253,11 +286,14 @@ def _search(free: np.ndarray, sr: int, sc: int, gr: int, gc: int) -> tuple[np.nd
     return dist, parent
 
 
-def astar(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int]) -> Optional[np.ndarray]:
-    """A* on an 8-connected bool grid; cells [K, 2] (row, col) from start to goal, or None."""
+def astar(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int],
+          weight: Optional[np.ndarray] = None) -> Optional[np.ndarray]:
+    """A* on an 8-connected bool grid; cells [K, 2] (row, col) from start to goal, or None.
+    weight: per-cell step-cost factor [H, W] >= 1 (None: 1 everywhere, the shortest path)."""
     if not (free[start] and free[goal]):
         return None
-    dist, parent = _search(free, start[0], start[1], goal[0], goal[1])
+    w = np.ones(free.shape) if weight is None else np.asarray(weight, np.float64)
+    dist, parent = _search(free, w, start[0], start[1], goal[0], goal[1])
     if not np.isfinite(dist[goal]):
         return None
     W = free.shape[1]
@@ -273,4 +309,4 @@ def dijkstra(free: np.ndarray, start: tuple[int, int]) -> np.ndarray:
     """Geodesic distance in cells from start over an 8-connected bool grid [H, W] (+inf unreachable)."""
     if not free[start]:
         return np.full(free.shape, np.inf)
-    return _search(free, start[0], start[1], -1, -1)[0]
+    return _search(free, np.ones(free.shape), start[0], start[1], -1, -1)[0]
