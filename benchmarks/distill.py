@@ -52,7 +52,7 @@ def registry(args) -> str:
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
-                   max_samples=args.max_samples, eviction=args.eviction, student=student)
+                   max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad, student=student)
 
 
 def teacher_route(args) -> dict:
@@ -141,6 +141,8 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
+    ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,
+                    help="random-shift augmentation in student pixels (0: off)")
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
     ap.add_argument("--expert-comfort", type=float, default=0.0,
                     help="m the teacher's route prefers to keep from blocked cells (0: the shortest route)")
