@@ -32,6 +32,7 @@ def run(
 
     existing_sources([str(posed_dir)], "POSED_DIR")
     creatable_folder(str(out_dir), "OUT_DIR")
+    from vid2sim.factory.recon.data import OUTPUTS
     from vid2sim.factory.recon.trainer import work
     from vid2sim.factory.runtime.runner import run_stage
 
@@ -44,7 +45,7 @@ def run(
     if baseline:
         conf = C.baseline(conf)
     out = run_stage(work(conf, posed_dir, gt_depth_dir=gt_depth), out_dir)
-    metrics = json.loads((out / "metrics.json").read_text())
+    metrics = json.loads((out / OUTPUTS.metrics).read_text())
     metrics.pop("per_frame", None)
     if as_json:
         typer.echo(json.dumps(metrics, indent=2))

@@ -37,6 +37,7 @@ from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid, load_walkable
 
 PREVIEW_PNG = "preview.png"
 COLLISION_PLY = "collision.ply"
+VISUAL_MESH_PLY = "visual_mesh.ply"  # an optional extra: the visual mesh with the ground
 REQUIRED_FILES = (SCENE_JSON, SPLATS_PLY, COLLISION_PLY, WALKABLE_NPZ, CAMERAS_PARQUET, PREVIEW_PNG)
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 # Top-level files that are bookkeeping, not content (checkout marker, factory stage marker).

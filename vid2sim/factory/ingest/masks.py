@@ -322,7 +322,7 @@ def build(conf: MasksConfig, files: list[Path], out_dir: Path, segmenter: Option
     for p, m in zip(files, masks):
         cv2.imwrite(str(out_dir / OUTPUTS.masks / f"{p.name}.png"), np.where(m, 0, 255).astype(np.uint8))
     table = pa.Table.from_pylist([{"image": p.name, **f} for p, f in zip(files, facts)])
-    pq.write_table(table, out_dir / "masks.parquet")
+    pq.write_table(table, out_dir / OUTPUTS.table)
     frac = np.array([f["dynamic_fraction"] for f in facts])
     return {"frames": len(files), "mean_dynamic": float(frac.mean()), "max_dynamic": float(frac.max()),
             "frames_with_dynamic": int((frac > 0).sum()),

@@ -68,11 +68,13 @@ def run_demo(registry: Optional[str] = None, workdir: str = "vid2sim-work", seed
 
     from vid2sim.factory.sfm.posed import PosedClip
     from vid2sim.factory.evaluation.synthetic_gt import scene_errors
-    from vid2sim.formats.walkable import load_walkable
+    from vid2sim.factory.runtime.steps import metric
+    from vid2sim.formats.bundle import COLLISION_PLY
+    from vid2sim.formats.walkable import WALKABLE_NPZ, load_walkable
 
-    gt = scene_errors(PosedClip.load(local_outputs(result.work, "metric").dir), synth_dir,
-                      trimesh.load(scene_dir / "collision.ply", force="mesh"),
-                      load_walkable(scene_dir / "walkable.npz"))
+    gt = scene_errors(PosedClip.load(local_outputs(result.work, metric.NAME).dir), synth_dir,
+                      trimesh.load(scene_dir / COLLISION_PLY, force="mesh"),
+                      load_walkable(scene_dir / WALKABLE_NPZ))
     preview = work / "preview.png"
     shutil.copyfile(scene_dir / "preview.png", preview)
     summary = {"scene_id": result.work.job.scene_id, "seconds": round(time.perf_counter() - t0, 1),

@@ -26,8 +26,7 @@ from vid2sim.factory.runtime.config import ClipJob, PipelineConfig, preset
 from vid2sim.factory.runtime.orchestrator import ClipResult, ClipState, StageSpec, init_ray, run_clips
 from vid2sim.factory.runtime.runner import ClipWork, StepTask, clip_work, local_outputs
 from vid2sim.factory.runtime.stage_cache import StageError
-from vid2sim.factory.runtime.steps import STEP_NAMES, STEPS
-from vid2sim.factory.runtime.steps.bundle import Outputs as BundleOutputs
+from vid2sim.factory.runtime.steps import STEP_NAMES, STEPS, bundle, recon
 from vid2sim.factory.sfm import sfm
 from vid2sim.registry import Registry
 
@@ -95,10 +94,10 @@ def stage_specs(cpus_per_clip: float, gpus_for_recon: float = 0.0,
     cpus_for_sfm: what the sfm stage reserves (default cpus_per_clip; 1 when COLMAP runs on
     one thread, `sfm.colmap_threads`, so another clip's stage can use the other cores)."""
     def cpus(name: str) -> float:
-        return cpus_for_sfm if name == "sfm" and cpus_for_sfm is not None else cpus_per_clip
+        return cpus_for_sfm if name == sfm.STAGE and cpus_for_sfm is not None else cpus_per_clip
 
     return [StageSpec(step.name, StepTask(step), num_cpus=cpus(step.name),
-                      num_gpus=gpus_for_recon if step.name == "recon" else 0.0) for step in STEPS]
+                      num_gpus=gpus_for_recon if step.name == recon.NAME else 0.0) for step in STEPS]
 
 
 # ----------------------------------------------------------------------------- run
@@ -127,7 +126,7 @@ def _scene_id(result: ClipResult) -> Optional[str]:
 
 def bundle_path(work: ClipWork) -> Path:
     """The finished bundle as a local folder (fetched from the work store when there is one)."""
-    return BundleOutputs(local_outputs(work, "bundle").dir).scene
+    return bundle.Outputs(local_outputs(work, bundle.NAME).dir).scene
 
 
 def ingest(inputs: Sequence[str], registry: Optional[str] = None, *,

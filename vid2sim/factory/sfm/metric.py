@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
+from vid2sim.factory.ingest import decode
 from vid2sim.factory.sfm import sfm
 from vid2sim.factory.sfm.export import rec_cam_to_world, write_colmap, write_transforms
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
@@ -267,7 +268,7 @@ def choose_scale(conf: MetricConfig, heights: np.ndarray, centers: np.ndarray,
 def timestamps(images_dir: str, names: list[str], fps: float) -> tuple[list[int], list[float], str]:
     """Frame index (position among the SfM input frames) and timestamp of each name."""
     folder = Path(images_dir) if images_dir else None
-    table = folder.parent / "frames.parquet" if folder else None
+    table = folder.parent / decode.OUTPUTS.frames if folder else None  # beside decode's images/
     all_names = sorted(p.name for p in folder.iterdir()) if folder and folder.is_dir() else names
     pos = {n: i for i, n in enumerate(all_names)}
     index = [pos.get(n, i) for i, n in enumerate(names)]
@@ -277,14 +278,14 @@ def timestamps(images_dir: str, names: list[str], fps: float) -> tuple[list[int]
         rows = pq.read_table(table, columns=["image", "timestamp"]).to_pylist()
         ts = {r["image"]: r["timestamp"] for r in rows if r["image"]}
         if all(n in ts for n in names):
-            return index, [float(ts[n]) for n in names], "frames.parquet"
+            return index, [float(ts[n]) for n in names], decode.OUTPUTS.frames
     return index, [i / fps for i in index], "index/fps"
 
 
 def load_sfm(sfm_dir: Path) -> tuple[Any, Path, Optional[Path], dict]:
     import pycolmap
 
-    und = Path(sfm_dir) / "undistorted"
+    und = Path(sfm_dir) / sfm.OUTPUTS.undistorted
     if not (und / "sparse").is_dir():
         raise StageError(STAGE, "missing_input", f"{sfm_dir} has no undistorted/sparse model")
     quality = json.loads((Path(sfm_dir) / sfm.OUTPUTS.quality).read_text())

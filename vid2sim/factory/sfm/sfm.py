@@ -43,6 +43,7 @@ class SfMOutputs:
     """Files of a finished sfm folder, relative to it."""
 
     quality: str = "quality.json"
+    undistorted: str = "undistorted"  # the pinhole COLMAP project: images/, sparse/, masks/
 
 
 OUTPUTS = SfMOutputs()
@@ -337,7 +338,7 @@ def undistort(out_dir: Path, images_dir: Path, masks: Optional[Path], rec: Any,
     """Pinhole images + model in `undistorted/`, masks warped the same way."""
     import pycolmap
 
-    und = out_dir / "undistorted"
+    und = out_dir / OUTPUTS.undistorted
     pycolmap.undistort_images(str(und), str(out_dir / "sparse" / "0"), str(images_dir),
                               output_type="COLMAP", num_threads=colmap_threads(conf))
     for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):

@@ -25,8 +25,9 @@ from vid2sim.factory.synthetic.render import StreetRenderer, SyntheticClip
 from vid2sim.factory.synthetic.street import StreetScene
 from vid2sim.factory.synthetic.textures import albedo, shade
 from vid2sim.factory.synthetic.trajectory import walking_poses
-from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.bundle import COLLISION_PLY, PREVIEW_PNG, VISUAL_MESH_PLY, write_bundle
 from vid2sim.formats.scene import make_scene_json
+from vid2sim.formats.splat_ply import SPLATS_PLY
 from vid2sim.ranges import checked
 from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply
@@ -145,15 +146,15 @@ def write_ground_truth_bundle(scene: StreetScene, clip: SyntheticClip, out_dir: 
         tags=["synthetic", "ground_truth"], description="Procedural sidewalk street with exact ground truth")
     with tempfile.TemporaryDirectory(prefix="gt-bundle-") as tmp:
         tmp = Path(tmp)
-        write_ply(_gaussian_model(splats, conf), tmp / "splats.ply")
+        write_ply(_gaussian_model(splats, conf), tmp / SPLATS_PLY)
         v, f = scene.without_ground()
-        write_mesh_ply(tmp / "collision.ply", v, f)
-        write_mesh_ply(tmp / "visual_mesh.ply", scene.vertices, scene.triangles, scene.face_material,
+        write_mesh_ply(tmp / COLLISION_PLY, v, f)
+        write_mesh_ply(tmp / VISUAL_MESH_PLY, scene.vertices, scene.triangles, scene.face_material,
                        scene.face_color, scene.face_instance)
-        _preview(scene, clip, tmp / "preview.png")
-        extras = {"visual_mesh.ply": tmp / "visual_mesh.ply",
+        _preview(scene, clip, tmp / PREVIEW_PNG)
+        extras = {VISUAL_MESH_PLY: tmp / VISUAL_MESH_PLY,
                   "ground_truth.json": clip.out_dir / "ground_truth.json"}
-        return write_bundle(out_dir, scene_json=scene_json, splats_ply=tmp / "splats.ply",
-                            collision_ply=tmp / "collision.ply", walkable=(grid, origin, res),
-                            cameras=clip.posed.cameras_table(), preview_png=tmp / "preview.png",
+        return write_bundle(out_dir, scene_json=scene_json, splats_ply=tmp / SPLATS_PLY,
+                            collision_ply=tmp / COLLISION_PLY, walkable=(grid, origin, res),
+                            cameras=clip.posed.cameras_table(), preview_png=tmp / PREVIEW_PNG,
                             extras=extras, overwrite=overwrite)

@@ -25,7 +25,7 @@ import numpy as np
 import open3d as o3d
 
 from vid2sim.factory.sfm.posed import PosedClip, PosedFrame, holdout_split
-from vid2sim.factory.runtime.stage_cache import StageError, is_done, mark_done, stage_key
+from vid2sim.factory.runtime.stage_cache import MARKER, StageError, is_done, mark_done, stage_key
 from vid2sim.factory.synthetic.config import StreetConfig
 from vid2sim.factory.synthetic.geometry import face_areas
 from vid2sim.factory.synthetic.mesh_io import write_mesh_ply
@@ -217,7 +217,7 @@ def render_video(scene: StreetScene, conf: StreetConfig, out_dir: Path) -> Synth
     if is_done(out_dir, key):
         return SyntheticClip.load(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    (out_dir / "stage.json").unlink(missing_ok=True)
+    (out_dir / MARKER).unlink(missing_ok=True)
     t0 = time.perf_counter()
     ts, T = walking_poses(conf)
     renderer = StreetRenderer(scene, conf)

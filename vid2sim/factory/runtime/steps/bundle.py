@@ -27,7 +27,7 @@ from vid2sim.factory.runtime.stage_cache import StageError, StageWork
 from vid2sim.factory.runtime.steps import meshing, metric, recon, sfm, walkable
 from vid2sim.factory.runtime.steps.base import StepOutputs
 from vid2sim.factory.sfm.posed import PosedClip
-from vid2sim.formats.bundle import write_bundle
+from vid2sim.formats.bundle import VISUAL_MESH_PLY, write_bundle
 from vid2sim.formats.errors import BundleError
 from vid2sim.formats.robot import ROBOT
 from vid2sim.formats.scene import make_scene_json
@@ -152,7 +152,7 @@ def _assemble(conf: Config, inputs: Inputs, out: Outputs) -> None:
         tags=sorted({tag(k, v) for k, v in spec.tags.items()} | {tag("licence", job.licence)}))
     with tempfile.TemporaryDirectory() as tmp:
         preview = render_preview(inputs.recon.splats, clip, walk.grid, Path(tmp) / "p.png")
-        extras = {"visual_mesh.ply": inputs.meshing.visual}
+        extras = {VISUAL_MESH_PLY: inputs.meshing.visual}
         if inputs.metric.colmap.is_dir():
             extras["colmap"] = inputs.metric.colmap
         write_bundle(out.scene, scene_json=scene, splats_ply=inputs.recon.splats,
