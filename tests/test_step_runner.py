@@ -10,16 +10,22 @@
   unchanged re-run rewrites nothing; a changed config of meshing, or a bumped walkable version,
   reruns exactly that step and the ones after it, never those before. The slow variant does the
   same on the synthetic street rendered to video, from decode on.
+- The same back half on an S3 work store (a moto server), each step on a fresh node's scratch:
+  in the order the server received the writes, every step's marker is the last object written
+  into its folder; an unchanged re-run writes nothing (the slow variant: every step, from decode).
 """
 
 from __future__ import annotations
 
 import json
+import urllib.request
 from dataclasses import replace
 from pathlib import Path
+from urllib.parse import parse_qs, unquote, urlsplit
 
 import pytest
 
+from cluster_fixtures import s3_server
 from recon_toy import make_toy_clip
 from step_inputs import KEYS, finished_outputs, job, step_inputs
 from vid2sim.factory.geometry import meshing as meshing_stage
@@ -32,8 +38,10 @@ from vid2sim.factory.recon import data as recon_data
 from vid2sim.factory.recon import trainer
 from vid2sim.factory.recon.data import load_views
 from vid2sim.factory.runtime.config import ClipJob, PipelineConfig, preset
+from vid2sim.factory.runtime.object_store import ObjectStore
 from vid2sim.factory.runtime.runner import ClipWork, cache_key, clip_work, run_stage, run_step
 from vid2sim.factory.runtime.stage_cache import MARKER, StageError, StageWork, load_record, stage_key
+from vid2sim.factory.runtime.staging import local_clip_dir
 from vid2sim.factory.runtime.steps import STEPS, bundle, metric
 from vid2sim.factory.sfm import metric as metric_stage
 from vid2sim.factory.sfm import sfm
@@ -171,13 +179,20 @@ def _tiny_recon() -> recon_config.ReconConfig:
     return conf
 
 
-def test_a_changed_step_reruns_it_and_the_steps_after_it_not_before(tmp_path, at_marker, monkeypatch):
+def _toy_back_half(tmp_path: Path, workdir: str | Path) -> ClipWork:
+    """A clip entering the chain at a ray-cast PosedClip (tiny settings), worked in `workdir`."""
     toy = make_toy_clip(tmp_path / "toy", n_frames=9, width=48, height=36, n_points=800)
     conf = PipelineConfig(recon=recon_config.baseline(_tiny_recon()),
                           views=replace(PipelineConfig().views, scale=1.0, every=1, min_alpha=0.1))
-    source = Source("video", tmp_path / "v.mp4", "file:///v.mp4", "a" * 64)  # posed already: not decoded
+    (tmp_path / "v.mp4").write_bytes(b"")  # posed already: never decoded (a work store checks it is here)
+    source = Source("video", tmp_path / "v.mp4", "file:///v.mp4", "a" * 64)
     clip = ClipJob(ClipSpec("clip0", source, (0.0, 0.8), "g"), "toy-1", "CC0")
-    work = clip_work(clip, conf, tmp_path / "work", metric=metric.Outputs(toy))
+    return clip_work(clip, conf, workdir, metric=metric.Outputs(toy))
+
+
+def test_a_changed_step_reruns_it_and_the_steps_after_it_not_before(tmp_path, at_marker, monkeypatch):
+    work = _toy_back_half(tmp_path, tmp_path / "work")
+    conf = work.conf
     changed = replace(conf, meshing=replace(conf.meshing, voxel_m=conf.meshing.voxel_m * 1.5))
     _reruns_exactly_downstream(work, BACK_HALF, at_marker, monkeypatch, changed, "meshing",
                                (walkable_stage, "walkable"))
@@ -196,3 +211,79 @@ def test_the_whole_chain_on_the_synthetic_street_reruns_exactly_downstream(tmp_p
     names = tuple(s.name for s in STEPS)
     changed = replace(conf, meshing=replace(conf.meshing, voxel_m=conf.meshing.voxel_m * 1.5))
     _reruns_exactly_downstream(work, names, at_marker, monkeypatch, changed, "meshing", (walkable_stage, "walkable"))
+
+
+# ----------------------------------------------------------------------------- on the work store
+
+
+@pytest.fixture
+def s3_log(tmp_path, monkeypatch):
+    """A moto S3 server (tests/cluster_fixtures.py) that logs every request it receives, in the
+    order received (moto's recorder, on the server side), with the clients pointed at it."""
+    log = tmp_path / "s3-requests.jsonl"
+    monkeypatch.setenv("MOTO_RECORDER_FILEPATH", str(log))  # the server process reads it at start
+    with s3_server() as server:
+        for k, v in server.env.items():
+            monkeypatch.setenv(k, v)
+        start = urllib.request.Request(f"{server.endpoint}/moto-api/recorder/start-recording", method="POST")
+        urllib.request.urlopen(start, timeout=10).read()
+        yield server, log
+
+
+def _objects_written(log: Path, bucket: str) -> list[str]:
+    """Keys of the objects the S3 server was asked to store, in the order it received them: a
+    PutObject, or the CompleteMultipartUpload that makes a multipart upload's object appear
+    (parts and the empty 'folder/' placeholders left out)."""
+    keys = []
+    for line in log.read_text().splitlines() if log.is_file() else []:
+        request = json.loads(line)
+        url = urlsplit(request["url"])
+        query = parse_qs(url.query, keep_blank_values=True)
+        stored = (request["method"] == "PUT" and not query) or (request["method"] == "POST" and "uploadId" in query)
+        key = unquote(url.path).removeprefix(f"/{bucket}/")
+        if stored and not key.endswith("/"):
+            keys.append(key)
+    return keys
+
+
+def _store_chain(work: ClipWork, names: tuple[str, ...], s3_log, tmp_path: Path, monkeypatch) -> None:
+    """Run the steps with an S3 work folder through the runner's store path, each on a fresh node
+    scratch, so it fetches the folders it reads from the store and uploads its own. Checked is
+    the order in which the S3 server received the writes (not their timestamps): each step's
+    folder gets its marker once, after every other object of the folder, and nothing after it.
+    An unchanged re-run, again on fresh nodes, writes nothing."""
+    server, log = s3_log
+    for i, name in enumerate(names):
+        monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / f"node-{name}"))
+        work = run_step(BY_NAME[name], work)
+        node = local_clip_dir(work.workdir, work.clip_id)
+        assert all((node / before / MARKER).is_file() for before in names[:i])  # fetched from the store
+    written, store = _objects_written(log, server.bucket), ObjectStore(work.workdir)
+    prefix = work.workdir.removeprefix(f"s3://{server.bucket}/")
+    for name in names:
+        folder = f"{prefix}/{work.clip_id}/{name}/"
+        mine = [k.removeprefix(folder) for k in written if k.startswith(folder)]
+        assert mine[-1] == MARKER and mine.count(MARKER) == 1, f"{name}: objects written {mine}"
+        assert sorted(mine) == sorted(store.list_files(f"{work.clip_id}/{name}"))
+    for name in names:
+        monkeypatch.setenv("VID2SIM_SCRATCH", str(tmp_path / f"again-{name}"))
+        work = run_step(BY_NAME[name], work)
+    assert _objects_written(log, server.bucket) == written
+
+
+def test_on_the_work_store_the_marker_is_the_last_object_written_of_every_step(tmp_path, s3_log, monkeypatch):
+    """The back half (recon -> meshing -> walkable -> bundle) on S3, see `_store_chain`."""
+    _store_chain(_toy_back_half(tmp_path, s3_log[0].uri("work")), BACK_HALF, s3_log, tmp_path, monkeypatch)
+
+
+@pytest.mark.slow
+def test_on_the_work_store_the_whole_chain_writes_every_marker_last(tmp_path, s3_log, monkeypatch):
+    """Every step, from decode on, on the synthetic street rendered to video, on S3."""
+    from vid2sim.factory.synthetic import generate_street, render_video
+    from vid2sim.factory.synthetic import preset as street_preset
+
+    street = street_preset("demo", seed=1, duration_s=4.0, write_depth=False)
+    video = render_video(generate_street(street), street, tmp_path / "render").video
+    clip = ClipJob(ClipSpec("clip0", resolve_source(video), None, "g"), "street-1", "CC0")
+    work = clip_work(clip, replace(preset("fast"), recon=_tiny_recon()), s3_log[0].uri("work"))
+    _store_chain(work, tuple(s.name for s in STEPS), s3_log, tmp_path, monkeypatch)
