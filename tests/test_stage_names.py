@@ -55,7 +55,6 @@ ALLOWED_BY = [
     ("vid2sim/formats/splat_ply.py", ("splats.ply",), "the scene bundle's file name"),
     ("vid2sim/formats/walkable.py", ("walkable.npz",),
      "the bundle's walkable grid; walkable.OUTPUTS.grid takes its name from here"),
-    ("vid2sim/envs/scenes.py", ("visual_mesh.ply",), "the bundle's visual-mesh extra (formats.bundle)"),
     ("vid2sim/formats/bundle.py", (MARKER,),
      "a bundle ignores a marker beside its files; formats sits below the factory (checked equal below)"),
 ]

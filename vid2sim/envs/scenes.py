@@ -18,13 +18,11 @@ import trimesh
 from plyfile import PlyData
 
 from vid2sim.registry import Registry
-from vid2sim.formats.bundle import COLLISION_PLY
+from vid2sim.formats.bundle import COLLISION_PLY, VISUAL_MESH_PLY
 from vid2sim.formats.scene import SCENE_JSON, read_scene_json
 from vid2sim.formats.splat_ply import SPLATS_PLY
 from vid2sim.formats.walkable import WALKABLE_NPZ, WalkableGrid, load_walkable
 from vid2sim.splats import GaussianModel, read_ply
-
-VISUAL_MESH_PLY = "visual_mesh.ply"
 
 
 class SceneError(RuntimeError):
