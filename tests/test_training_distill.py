@@ -209,3 +209,25 @@ def test_resume_refuses_other_options_and_missing_runs(distilled, tmp_path):
     missing = tmp_path / "no-run"
     result = CliRunner().invoke(app, ["train", "--registry", "x", "--run", str(missing), "--resume"])
     assert result.exit_code == 2 and "not a run folder" in result.output and not missing.exists()
+
+
+def test_dataset_gather_reads_rows_across_rounds_without_concatenating():
+    def batch(n, value):
+        return Batch(np.full((n, 1, 1, 2, 2), value, np.uint8), np.full((n, 6, 2), value, np.float32),
+                     np.stack([np.full(n, value, np.float32), np.arange(n, dtype=np.float32)], 1))
+    data = Dataset(max_samples=25)
+    for k in range(4):
+        data.add(batch(10, k))  # 30 rows kept (rounds 1-3), the newest 25 sampled
+    assert len(data) == 30 and data.rows() == 25
+    whole = np.concatenate([p.actions for p in data.parts])[-25:]
+    idx = np.array([0, 24, 3, 3, 12, 5, 20])
+    got = data.gather(idx)
+    np.testing.assert_array_equal(got.actions, whole[idx])
+    np.testing.assert_array_equal(got.frames[:, 0, 0, 0, 0], whole[idx, 0])
+    np.testing.assert_array_equal(got.vectors[:, 0, 0], whole[idx, 0])
+    assert got.actions[0].tolist() == [1.0, 5.0]  # the 6th row of round 1: its first 5 fall outside the cap
+    empty = Dataset(max_samples=5)
+    empty.add(batch(0, 0))  # a round whose labels were all dropped leaves an empty dataset, no error
+    assert len(empty) == 0 and empty.rows() == 0
+    with pytest.raises(DistillError, match="no_labels"):
+        empty.gather(np.zeros(1, np.int64))

@@ -30,7 +30,7 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Sequence, Union
 
 import numpy as np
 import torch
@@ -88,7 +88,7 @@ class Dataset:
         if self.eviction == "even":
             self._thin_evenly()
             return
-        while len(self) - len(self.parts[0].actions) >= self.max_samples and len(self.parts) > 1:
+        while len(self.parts) > 1 and len(self) - len(self.parts[0].actions) >= self.max_samples:
             self.parts.pop(0)
             self.seen.pop(0)
 
@@ -101,10 +101,33 @@ class Dataset:
     def __len__(self) -> int:
         return sum(len(p.actions) for p in self.parts)
 
+    def rows(self) -> int:
+        """How many labelled states the learner samples from: the newest ones, at most the cap."""
+        return min(len(self), self.max_samples)
+
+    def gather(self, idx: np.ndarray) -> Batch:
+        """Rows idx [B] (0 <= idx < rows(), in time order) copied out of the parts, without
+        concatenating the whole dataset (150k states of 2 frames are ~2 GB)."""
+        if not self.parts:
+            raise DistillError("no_labels: the dataset is empty (every label of the rounds so far was dropped)")
+        starts = np.cumsum([0] + [len(p.actions) for p in self.parts])  # [P + 1]
+        rows = np.asarray(idx, np.int64) + (len(self) - self.rows())  # [B] rows of the concatenation
+        part = np.searchsorted(starts, rows, side="right") - 1  # [B]
+        first = self.parts[0]
+        out = Batch(np.empty((len(rows), *first.frames.shape[1:]), first.frames.dtype),
+                    np.empty((len(rows), *first.vectors.shape[1:]), first.vectors.dtype),
+                    np.empty((len(rows), *first.actions.shape[1:]), first.actions.dtype))
+        for j in np.unique(part):
+            hit = part == j
+            local = rows[hit] - starts[j]
+            src = self.parts[j]
+            out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
+            out.actions[hit] = src.actions[local]
+        return out
+
     def arrays(self) -> Batch:
-        keep = min(len(self), self.max_samples)
-        cat = [np.concatenate([getattr(p, k) for p in self.parts])[-keep:] for k in ("frames", "vectors", "actions")]
-        return Batch(*cat)
+        """The whole sampled range as one Batch (a copy; for inspection and tests)."""
+        return self.gather(np.arange(self.rows()))
 
 
 def apportion(total: int, sizes: Sequence[int]) -> list[int]:
@@ -216,18 +239,18 @@ class Collector:
 
 
 # ------------------------------------------------------------------ learning
-def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Batch, updates: int, batch_size: int,
-        shift_pad: int, rng: np.random.Generator) -> dict[str, float]:
-    """`updates` Adam steps of MSE to the teacher's labels on random-shifted batches."""
+def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
+        batch_size: int, shift_pad: int, rng: np.random.Generator) -> dict[str, float]:
+    """`updates` Adam steps of MSE to the teacher's labels on random-shifted batches drawn
+    uniformly from `data` (a Dataset, sampled in place, or one Batch)."""
     student.train()
-    n, losses, t0 = len(data.actions), [], time.perf_counter()
-    frames, vectors, actions = (torch.from_numpy(data.frames), torch.from_numpy(data.vectors),
-                                torch.from_numpy(data.actions))
+    data = data if isinstance(data, Dataset) else _one_part(data)
+    n, losses, t0 = data.rows(), [], time.perf_counter()
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
-        idx = torch.from_numpy(rng.integers(0, n, batch_size))
-        x = random_shift(frames[idx].float(), shift_pad, gen)
-        loss = F.mse_loss(student.act(x, vectors[idx]), actions[idx])
+        batch = data.gather(rng.integers(0, n, batch_size))
+        x = random_shift(torch.from_numpy(batch.frames).float(), shift_pad, gen)
+        loss = F.mse_loss(student.act(x, torch.from_numpy(batch.vectors)), torch.from_numpy(batch.actions))
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -236,6 +259,12 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Batch, u
     wall = time.perf_counter() - t0
     return {"loss": float(np.mean(losses[-max(1, updates // 10):])), "fit_s": wall,
             "samples_per_s": updates * batch_size / max(wall, 1e-9)}
+
+
+def _one_part(batch: Batch) -> Dataset:
+    data = Dataset(max(len(batch.actions), 1))
+    data.add(batch)
+    return data
 
 
 # ------------------------------------------------------------------ the loop
@@ -299,7 +328,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
-            fitted = fit(student, optimizer, dataset.arrays(), d.updates_per_round, d.batch_size, d.shift_pad, rng)
+            fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
