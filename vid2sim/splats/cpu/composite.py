@@ -13,10 +13,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from ._bits import popc64
+from ._expf import expf_glibc
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
-
 from .project import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X,
-                      F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_C, G_MX, G_MY, G_O, G_R, G_Z, NG)
+                      F_Y, F_Z, G_A, G_AX, G_AY, G_B, G_BL, G_C, G_G, G_MX, G_MY, G_NX, G_NY,
+                      G_NZ, G_O, G_R, G_Z, NG)
 
 F32 = np.float32
 S_MAX = F32(4.5)
@@ -49,86 +51,116 @@ def gather(fo, box, inst, s, n, g, gb):
             gb[k, q] = box[v, q]
 
 
-@njit(cache=True)
-def _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median, T_out,
-                  n_contrib, med_idx):
-    tw = x1 - x0
-    npx = tw * (y1 - y0)
-    T = np.ones(npx, np.float32)
-    acc = np.zeros((npx, 7), np.float32)  # r g b depth nx ny nz
-    med = np.full(npx, -1, np.int32)
-    last = np.zeros(npx, np.int32)
-    done = np.zeros(npx, np.bool_)
-    rmask = np.zeros(y1 - y0, np.uint64)  # per tile row: bit (px - x0) set once px is done
-    n_done = 0
+LANES = 8  # pixels per SIMD window of a splat row
+PROW = MAX_TILE + LANES  # row stride of the tile's pixel planes (windows may run past the tile)
+PLANE = MAX_TILE * PROW  # floats per plane
+U64 = np.uint64
+# Forward planes of `pix` after T (plane 0): r g b depth nx ny nz, n_contrib, median position
+# (both float32: exact below 2^24). Fixed compile-time offsets into one buffer with unsigned
+# indices let LLVM vectorise the windows without runtime alias checks.
+P_ACC = tuple(U64(i * PLANE) for i in range(1, 8))
+P_LAST, P_MED = U64(8 * PLANE), U64(9 * PLANE)
+N_FWD_PLANES = 10
+
+
+@njit(cache=True, inline="always")
+def _fwd_window(pix, pb, px0, livebits, hi, kf, mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2, c3,
+                c4, c5, c6):
+    """Blend splat kf into LANES pixels of a row (lane j = pixel px0 + j, plane index pb + j)
+    with the arithmetic and order of the per-pixel 3DGS loop but no branch, so the window
+    vectorises (expf_glibc equals np.exp bit for bit). Lanes that have stopped (bit j of
+    livebits clear), lie past the box (j > hi), fall outside the cut-off or below A_MIN take
+    no weight; lanes reaching T < T_MIN stop. Returns the stop bits."""
+    stops = U64(0)
+    for j in range(LANES):
+        p = pb + U64(j)
+        dx = (F32(px0 + j) + HALF) - mx
+        s = HALF * (ca * dx * dx + ccdy2) + cb * dx * dy
+        cand = ((livebits >> U64(j)) & U64(1) == U64(1)) & (U64(j) <= hi) & (s >= ZERO) & (
+            s <= ct)
+        oe = o * expf_glibc(-s)  # garbage outside [0, ct]: masked below
+        al = A_MAX if A_MAX < oe else oe  # min(A_MAX, o e)
+        ok = cand & (al >= A_MIN)
+        Tp = pix[p]
+        Tn = Tp * (ONE - al)
+        blend = ok & (Tn >= T_MIN)
+        w = al * Tp if blend else ZERO
+        pix[p + P_ACC[0]] += w * c0
+        pix[p + P_ACC[1]] += w * c1
+        pix[p + P_ACC[2]] += w * c2
+        pix[p + P_ACC[3]] += w * c3
+        pix[p + P_ACC[4]] += w * c4
+        pix[p + P_ACC[5]] += w * c5
+        pix[p + P_ACC[6]] += w * c6
+        pix[p] = Tn if blend else Tp
+        pix[p + P_LAST] = kf + ONE if blend else pix[p + P_LAST]
+        m = pix[p + P_MED]
+        pix[p + P_MED] = kf if blend & (m < ZERO) & (Tn <= T_MED) else m
+        stops |= U64(ok & (Tn < T_MIN)) << U64(j)
+    return stops
+
+
+@njit(cache=True, error_model="numpy")
+def _tile_forward(g, gb, n, x0, y0, x1, y1, pix, rdone, color, alpha, depth, normal, median,
+                  T_out, n_contrib, med_idx):
+    """Composite one tile's depth-sorted splats g [n, NL] / gb [n, 4] (splat-major, each
+    splat row in SIMD windows, per-pixel early stop); pix [N_FWD_PLANES PLANE] and
+    rdone [MAX_TILE] (per row: bit px - x0 set once px has stopped) are scratch."""
+    tw, th = x1 - x0, y1 - y0
+    for i in range(th * PROW):
+        p = U64(i)
+        pix[p] = ONE
+        for q in range(7):
+            pix[p + P_ACC[q]] = ZERO
+        pix[p + P_LAST] = ZERO
+        pix[p + P_MED] = -ONE
+    rdone[:th] = 0
+    n_live = tw * th
     for k in range(n):
         bx0 = max(gb[k, 0], x0)
         bx1 = min(gb[k, 2] + 1, x1)
         by0 = max(gb[k, 1], y0)
         by1 = min(gb[k, 3] + 1, y1)
-        mx, my = g[k, F_X], g[k, F_Y]
-        ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
-        o, cut = g[k, F_O], g[k, F_CUT]
-        # hoisted: stores into acc could alias g as far as the compiler knows
-        c0, c1, c2, c3 = g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z]
-        c4, c5, c6 = g[k, F_NX], g[k, F_NY], g[k, F_NZ]
         if bx1 <= bx0:
             continue
-        span = (ALL_BITS >> np.uint64(64 - (bx1 - bx0))) << np.uint64(bx0 - x0)
+        mx, my = g[k, F_X], g[k, F_Y]
+        ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
+        o, ct = g[k, F_O], min(g[k, F_CUT], S_MAX)
+        c0, c1, c2, c3 = g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z]
+        c4, c5, c6 = g[k, F_NX], g[k, F_NY], g[k, F_NZ]
+        kf = F32(k)
+        lo, hi = bx0 - x0, bx1 - 1 - x0
+        span = (ALL_BITS >> U64(63 - (hi - lo))) << U64(lo)
         for py in range(by0, by1):
-            if rmask[py - y0] & span == span:
-                continue  # every pixel of this row's span has terminated
+            ry = py - y0
+            if rdone[ry] & span == span:
+                continue  # every pixel of this row's span has stopped
             dy = (F32(py) + HALF) - my
-            row = (py - y0) * tw - x0
-            for px in range(bx0, bx1):
-                p = row + px
-                if done[p]:
-                    continue
-                dx = (F32(px) + HALF) - mx
-                s = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                if s < ZERO or s > cut or s > S_MAX:
-                    continue
-                al = min(A_MAX, o * np.exp(-s))
-                if al < A_MIN:
-                    continue
-                Tp = T[p]
-                Tn = Tp * (ONE - al)
-                if Tn < T_MIN:
-                    done[p] = True
-                    n_done += 1
-                    rmask[py - y0] |= np.uint64(1) << np.uint64(px - x0)
-                    continue
-                w = al * Tp
-                a = acc[p]
-                a[0] += w * c0
-                a[1] += w * c1
-                a[2] += w * c2
-                a[3] += w * c3
-                a[4] += w * c4
-                a[5] += w * c5
-                a[6] += w * c6
-                if med[p] < 0 and Tn <= T_MED:
-                    med[p] = k
-                T[p] = Tn
-                last[p] = k + 1
-        if n_done == npx:
+            ccdy2 = cc * dy * dy
+            for c in range(lo, hi + 1, LANES):
+                stop = _fwd_window(pix, U64(ry * PROW + c), x0 + c, ~rdone[ry] >> U64(c),
+                                   U64(hi - c), kf, mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2,
+                                   c3, c4, c5, c6) << U64(c)
+                rdone[ry] |= stop
+                n_live -= np.int64(popc64(stop))
+        if n_live == 0:
             break
     for py in range(y0, y1):
         for px in range(x0, x1):
-            p = (py - y0) * tw + px - x0
-            a = acc[p]
-            color[py, px, 0] = a[0]
-            color[py, px, 1] = a[1]
-            color[py, px, 2] = a[2]
-            alpha[py, px] = ONE - T[p]
-            depth[py, px] = a[3]
-            normal[py, px, 0] = a[4]
-            normal[py, px, 1] = a[5]
-            normal[py, px, 2] = a[6]
-            median[py, px] = g[med[p], F_Z] if med[p] >= 0 else ZERO
-            T_out[py, px] = T[p]
-            n_contrib[py, px] = last[p]
-            med_idx[py, px] = med[p]
+            p = U64((py - y0) * PROW + px - x0)
+            color[py, px, 0] = pix[p + P_ACC[0]]
+            color[py, px, 1] = pix[p + P_ACC[1]]
+            color[py, px, 2] = pix[p + P_ACC[2]]
+            alpha[py, px] = ONE - pix[p]
+            depth[py, px] = pix[p + P_ACC[3]]
+            normal[py, px, 0] = pix[p + P_ACC[4]]
+            normal[py, px, 1] = pix[p + P_ACC[5]]
+            normal[py, px, 2] = pix[p + P_ACC[6]]
+            m = np.int32(pix[p + P_MED])
+            median[py, px] = g[m, F_Z] if m >= 0 else ZERO
+            T_out[py, px] = pix[p]
+            n_contrib[py, px] = np.int32(pix[p + P_LAST])
+            med_idx[py, px] = m
 
 
 @njit(cache=True)
@@ -162,6 +194,8 @@ def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alph
     for _h in prange(n_workers):
         g = np.empty((cap, NL), np.float32)
         gb = np.empty((cap, 4), np.int32)
+        pix = np.empty(N_FWD_PLANES * PLANE, np.float32)
+        rdone = np.empty(MAX_TILE, np.uint64)
         while True:
             k = fetch_add(nxt, 1)
             if k >= n_tiles:
@@ -171,103 +205,199 @@ def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alph
             n = tile_offsets[t + 1] - s
             x0, y0, x1, y1 = tile_rect(t, tiles_x, tile, width, height)
             gather(fo, box, inst, s, n, g, gb)
-            _tile_forward(g, gb, n, x0, y0, x1, y1, color, alpha, depth, normal, median,
-                          T_out, n_contrib, med_idx)
+            _tile_forward(g, gb, n, x0, y0, x1, y1, pix, rdone, color, alpha, depth, normal,
+                          median, T_out, n_contrib, med_idx)
 
 
-# fastmath (reassociation, contraction) on the backward only: ~13 % less CPU in the 100k-splat
-# 320x180 fwd+bwd (benchmarks/splats.py), gradients within the reference tolerances
-# (tests/test_splats_cpu.py) and still the same for any thread count. The forward stays strict:
-# the env's exact frames are compared bit for bit with it.
-@njit(cache=True, fastmath=True)
-def _tile_backward(g, gb, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
-                   d_alpha, d_depth, d_normal, d_median, acc):
-    """Back-to-front pass of one tile; adds splat k's 2D gradients into acc[k] ([n, NG])."""
+# Backward planes of `pix` after T (plane 0): n_contrib (float32), the 8 per-pixel loss
+# gradients Q (dL/d r g b depth nx ny nz, dL/dalpha * T_final) and the 7 channels S
+# accumulated behind the current splat.
+P_LAST_B = U64(PLANE)
+P_Q = tuple(U64((2 + i) * PLANE) for i in range(8))
+P_S = tuple(U64((10 + i) * PLANE) for i in range(7))
+N_BWD_PLANES = 17
+
+
+@njit(cache=True, inline="always")
+def _channel(pix, p, q_at, s_at, ck, al, om, ok):
+    """One colour / depth / normal channel of a backward lane: puts the splat in front of
+    the channel behind it (S); returns (Q, (ck - S) Q)."""
+    q = pix[p + q_at]
+    sb = pix[p + s_at]
+    pix[p + s_at] = al * ck + om * sb if ok else sb
+    return q, (ck - sb) * q
+
+
+# fastmath (reassociation, contraction) on the backward only: it lets LLVM sum each window's
+# lanes; gradients stay within the reference tolerances (tests/test_splats_cpu.py) and the
+# same for any thread count. The forward stays strict: the env's exact frames are compared
+# bit for bit with it.
+@njit(cache=True, fastmath=True, inline="always")
+def _bwd_window(pix, pb, px0, hi, kf, mx, dy, ccdy2, ca, cb, cc, o, ct, c0, c1, c2, c3, c4, c5,
+                c6):
+    """Take splat kf off LANES pixels of a row (lane j = pixel px0 + j, plane index pb + j),
+    back to front, without a branch so the window vectorises. Lanes past the box (j > hi),
+    at or behind the pixel's last blended splat, outside the cut-off or below A_MIN add
+    zeros. Returns (bits of the lanes that took part, the window's sums of the 2D gradients
+    in G_* order: mean x y, conic a b c, opacity, r g b, depth, normal x y z, |mean x| |y|)."""
+    hits = U64(0)
+    s_mx = s_my = s_a = s_b = s_c = s_o = ZERO
+    s_r = s_g = s_bl = s_z = s_nx = s_ny = s_nz = s_ax = s_ay = ZERO
+    for j in range(LANES):
+        p = pb + U64(j)
+        dx = (F32(px0 + j) + HALF) - mx
+        s = HALF * (ca * dx * dx + ccdy2) + cb * dx * dy
+        cand = (U64(j) <= hi) & (kf < pix[p + P_LAST_B]) & (s >= ZERO) & (s <= ct)
+        e = expf_glibc(-s)  # garbage outside [0, ct]: masked below
+        raw = o * e
+        al = A_MAX if A_MAX < raw else raw  # min(A_MAX, o e)
+        ok = cand & (al >= A_MIN)
+        al = al if ok else ZERO  # a lane that does not take part: T, S unchanged, zero sums
+        om = ONE - al
+        Tp = pix[p] / om  # T in front of the splat
+        pix[p] = Tp
+        w = al * Tp
+        q0, d0 = _channel(pix, p, P_Q[0], P_S[0], c0, al, om, ok)
+        q1, d1 = _channel(pix, p, P_Q[1], P_S[1], c1, al, om, ok)
+        q2, d2 = _channel(pix, p, P_Q[2], P_S[2], c2, al, om, ok)
+        q3, d3 = _channel(pix, p, P_Q[3], P_S[3], c3, al, om, ok)
+        q4, d4 = _channel(pix, p, P_Q[4], P_S[4], c4, al, om, ok)
+        q5, d5 = _channel(pix, p, P_Q[5], P_S[5], c5, al, om, ok)
+        q6, d6 = _channel(pix, p, P_Q[6], P_S[6], c6, al, om, ok)
+        s_r += w * q0
+        s_g += w * q1
+        s_bl += w * q2
+        s_z += w * q3
+        s_nx += w * q4
+        s_ny += w * q5
+        s_nz += w * q6
+        dal = Tp * (d0 + d1 + d2 + d3 + d4 + d5 + d6) + pix[p + P_Q[7]] / om  # dL/dalpha
+        dal = dal if ok & (raw <= A_MAX) else ZERO  # clamped at A_MAX: no gradient through it
+        ds = -al * dal  # dL/dsigma
+        gmx = -ds * (ca * dx + cb * dy)
+        gmy = -ds * (cc * dy + cb * dx)
+        s_o += (e if ok else ZERO) * dal
+        s_mx += gmx
+        s_my += gmy
+        s_ax += abs(gmx)
+        s_ay += abs(gmy)
+        s_a += HALF * ds * dx * dx
+        s_b += ds * dx * dy
+        s_c += HALF * ds * dy * dy
+        hits |= U64(ok) << U64(j)
+    return hits, (s_mx, s_my, s_a, s_b, s_c, s_o, s_r, s_g, s_bl, s_z, s_nx, s_ny, s_nz, s_ax,
+                  s_ay)
+
+
+@njit(cache=True, inline="always")
+def _add_sums(a, sums):
+    """Adds a window's sums (`_bwd_window` order) into a splat's row a [NG]; written out: a
+    loop over the tuple compiles to a jump table."""
+    a[G_MX] += sums[0]
+    a[G_MY] += sums[1]
+    a[G_A] += sums[2]
+    a[G_B] += sums[3]
+    a[G_C] += sums[4]
+    a[G_O] += sums[5]
+    a[G_R] += sums[6]
+    a[G_G] += sums[7]
+    a[G_BL] += sums[8]
+    a[G_Z] += sums[9]
+    a[G_NX] += sums[10]
+    a[G_NY] += sums[11]
+    a[G_NZ] += sums[12]
+    a[G_AX] += sums[13]
+    a[G_AY] += sums[14]
+
+
+@njit(cache=True)
+def _bwd_init(x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx, d_color, d_alpha,
+              d_depth, d_normal, d_median, acc):
+    """Fill the backward planes of one tile (windows past the tile's right edge read T = 1
+    and zeros); rlast [MAX_TILE] gets each row's largest n_contrib, acc [n, NG] the median
+    depth gradients. Returns the tile's largest n_contrib."""
     tw = x1 - x0
-    npx = tw * (y1 - y0)
-    T = np.empty(npx, np.float32)
-    last = np.empty(npx, np.int32)
-    gpix = np.empty((npx, 8), np.float32)  # dL/d(r g b depth nx ny nz), dL/dalpha * T_final
-    S = np.zeros((npx, 7), np.float32)  # colour/depth/normal accumulated behind the splat
-    for py in range(y0, y1):
-        for px in range(x0, x1):
-            p = (py - y0) * tw + px - x0
-            T[p] = T_out[py, px]
-            last[p] = n_contrib[py, px]
+    k_end = 0
+    for ry in range(y1 - y0):
+        py = y0 + ry
+        rl = 0
+        for cx in range(tw + LANES):
+            p = U64(ry * PROW + cx)
+            px = x0 + cx
+            if cx >= tw:
+                pix[p] = ONE
+                pix[p + P_LAST_B] = ZERO
+                for c in range(8):
+                    pix[p + P_Q[c]] = ZERO
+                for c in range(7):
+                    pix[p + P_S[c]] = ZERO
+                continue
+            T = T_out[py, px]
+            last = n_contrib[py, px]
+            rl = max(rl, last)
+            pix[p] = T
+            pix[p + P_LAST_B] = F32(last)
             m = med_idx[py, px]
             if m >= 0:
                 acc[m, G_Z] += d_median[py, px]
-            q = gpix[p]
-            q[0] = d_color[py, px, 0]
-            q[1] = d_color[py, px, 1]
-            q[2] = d_color[py, px, 2]
-            q[3] = d_depth[py, px]
-            q[4] = d_normal[py, px, 0]
-            q[5] = d_normal[py, px, 1]
-            q[6] = d_normal[py, px, 2]
-            q[7] = d_alpha[py, px] * T[p]
-    for k in range(n - 1, -1, -1):
+            for c in range(3):
+                pix[p + P_Q[c]] = d_color[py, px, c]
+                pix[p + P_Q[4 + c]] = d_normal[py, px, c]
+            pix[p + P_Q[3]] = d_depth[py, px]
+            pix[p + P_Q[7]] = d_alpha[py, px] * T
+            for c in range(7):
+                pix[p + P_S[c]] = ZERO
+        rlast[ry] = rl
+        k_end = max(k_end, rl)
+    return k_end
+
+
+@njit(cache=True, fastmath=True, error_model="numpy")
+def _tile_backward(g, gb, n, x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx, d_color,
+                   d_alpha, d_depth, d_normal, d_median, acc):
+    """Back-to-front pass of one tile (from each pixel's last blended splat, recovering T by
+    division); adds splat k's 2D gradients into acc[k] ([n, NG]). pix [N_BWD_PLANES PLANE]
+    and rlast [MAX_TILE] are scratch. Returns the number of leading rows of acc it touched
+    (rows from there on stay as they were)."""
+    k_end = _bwd_init(x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx, d_color, d_alpha,
+                      d_depth, d_normal, d_median, acc)
+    for k in range(min(n, k_end) - 1, -1, -1):
         bx0 = max(gb[k, 0], x0)
         bx1 = min(gb[k, 2] + 1, x1)
         by0 = max(gb[k, 1], y0)
         by1 = min(gb[k, 3] + 1, y1)
+        if bx1 <= bx0:
+            continue
         mx, my = g[k, F_X], g[k, F_Y]
         ca, cb, cc = g[k, F_A], g[k, F_B], g[k, F_C]
-        o, cut = g[k, F_O], g[k, F_CUT]
-        ck = (g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z], g[k, F_NX], g[k, F_NY], g[k, F_NZ])
+        o, ct = g[k, F_O], min(g[k, F_CUT], S_MAX)
+        c0, c1, c2, c3 = g[k, F_R], g[k, F_G], g[k, F_BL], g[k, F_Z]
+        c4, c5, c6 = g[k, F_NX], g[k, F_NY], g[k, F_NZ]
+        kf = F32(k)
+        lo, hi = bx0 - x0, bx1 - 1 - x0
         a = acc[k]
         for py in range(by0, by1):
+            ry = py - y0
+            if k >= rlast[ry]:
+                continue  # no pixel of this row blended splat k
             dy = (F32(py) + HALF) - my
-            row = (py - y0) * tw - x0
-            for px in range(bx0, bx1):
-                p = row + px
-                if k >= last[p]:
-                    continue
-                dx = (F32(px) + HALF) - mx
-                s = HALF * (ca * dx * dx + cc * dy * dy) + cb * dx * dy
-                if s < ZERO or s > cut or s > S_MAX:
-                    continue
-                G = np.exp(-s)
-                raw = o * G
-                al = min(A_MAX, raw)
-                if al < A_MIN:
-                    continue
-                om = ONE - al
-                Tp = T[p] / om
-                T[p] = Tp
-                w = al * Tp
-                q = gpix[p]
-                Sp = S[p]
-                dal = ZERO
-                for c in range(7):  # G_R .. G_NZ follow the F_R .. F_NZ order
-                    a[G_R + c] += w * q[c]
-                    dal += (ck[c] - Sp[c]) * q[c]
-                    Sp[c] = al * ck[c] + om * Sp[c]
-                dal = Tp * dal + q[7] / om
-                if raw <= A_MAX:
-                    a[G_O] += G * dal
-                    ds = -al * dal
-                    gmx = -ds * (ca * dx + cb * dy)
-                    gmy = -ds * (cc * dy + cb * dx)
-                    a[G_MX] += gmx
-                    a[G_MY] += gmy
-                    a[G_AX] += abs(gmx)
-                    a[G_AY] += abs(gmy)
-                    a[G_A] += HALF * ds * dx * dx
-                    a[G_B] += ds * dx * dy
-                    a[G_C] += HALF * ds * dy * dy
+            ccdy2 = cc * dy * dy
+            for c in range(lo, hi + 1, LANES):
+                hits, sums = _bwd_window(pix, U64(ry * PROW + c), x0 + c, U64(hi - c), kf, mx,
+                                         dy, ccdy2, ca, cb, cc, o, ct, c0, c1, c2, c3, c4, c5,
+                                         c6)
+                if hits:
+                    _add_sums(a, sums)
+    return min(n, k_end)
 
 
 @njit(parallel=True, cache=True)
-def raster_backward(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, height, tile,
+def _raster_backward_tiles(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, height, tile,
                     T_out, n_contrib, med_idx, d_color, d_alpha, d_depth, d_normal, d_median,
                     n_workers):
-    """Per-visible-splat 2D gradients g2 [V, NG] float32.
-
-    Race-free and deterministic for any thread count: each (tile, splat) instance owns
-    one row of gi [M, NG] (tiles drawn dynamically, largest first); then every splat sums
-    its instance rows pos[row_start[v]:row_start[v+1]] in a fixed order.
-    """
+    """raster_backward on n_workers threads: each (tile, splat) instance owns one row of
+    gi [M, NG] (tiles drawn dynamically, largest first, race-free); then every splat sums
+    its instance rows pos[row_start[v]:row_start[v+1]] (ascending tile order)."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     order = tile_order(tile_offsets)
@@ -277,6 +407,8 @@ def raster_backward(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, h
     for _h in prange(n_workers):
         g = np.empty((cap, NL), np.float32)
         gb = np.empty((cap, 4), np.int32)
+        pix = np.empty(N_BWD_PLANES * PLANE, np.float32)
+        rlast = np.empty(MAX_TILE, np.int64)
         while True:
             k = fetch_add(nxt, 1)
             if k >= n_tiles:
@@ -290,8 +422,8 @@ def raster_backward(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, h
             gather(fo, box, inst, s, n, g, gb)
             acc = gi[s:s + n]
             acc[:] = 0.0
-            _tile_backward(g, gb, n, x0, y0, x1, y1, T_out, n_contrib, med_idx, d_color,
-                           d_alpha, d_depth, d_normal, d_median, acc)
+            _tile_backward(g, gb, n, x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx,
+                           d_color, d_alpha, d_depth, d_normal, d_median, acc)
     out = np.empty((n_vis, NG), np.float32)
     nxt[0] = 0
     n_items = n_chunks(n_vis, CHUNK)
@@ -308,3 +440,55 @@ def raster_backward(fo, box, tile_offsets, inst, row_start, pos, n_vis, width, h
                     for q in range(NG):
                         o[q] += a[q]
     return out
+
+
+@njit(cache=True)
+def _raster_backward_serial(fo, box, tile_offsets, inst, n_vis, width, height, tile, T_out,
+                            n_contrib, med_idx, d_color, d_alpha, d_depth, d_normal, d_median):
+    """raster_backward in one thread: tiles in ascending order, each tile's gradient rows
+    added straight into their splat's row of g2 (the same sums in the same order as the
+    instance rows of the parallel version, without the [M, NG] buffer)."""
+    tiles_x = (width + tile - 1) // tile
+    n_tiles = tiles_x * ((height + tile - 1) // tile)
+    cap = max(np.max(tile_offsets[1:] - tile_offsets[:-1]) if n_tiles > 0 else 0, 1)
+    g = np.empty((cap, NL), np.float32)
+    gb = np.empty((cap, 4), np.int32)
+    pix = np.empty(N_BWD_PLANES * PLANE, np.float32)
+    rlast = np.empty(MAX_TILE, np.int64)
+    acc = np.zeros((cap, NG), np.float32)
+    out = np.zeros((n_vis, NG), np.float32)
+    for t in range(n_tiles):
+        s = tile_offsets[t]
+        n = tile_offsets[t + 1] - s
+        if n == 0:
+            continue
+        x0, y0, x1, y1 = tile_rect(t, tiles_x, tile, width, height)
+        gather(fo, box, inst, s, n, g, gb)
+        m = _tile_backward(g, gb, n, x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx,
+                           d_color, d_alpha, d_depth, d_normal, d_median, acc)
+        for k in range(m):  # rows m.. are zero: adding them would change nothing
+            o = out[inst[s + k]]
+            a = acc[k]
+            for q in range(NG):
+                o[q] += a[q]
+                a[q] = 0.0
+    return out
+
+
+def raster_backward(fo: np.ndarray, box: np.ndarray, tile_offsets: np.ndarray, inst: np.ndarray,
+                    row_start: np.ndarray, pos: np.ndarray, n_vis: int, width: int, height: int,
+                    tile: int, T_out: np.ndarray, n_contrib: np.ndarray, med_idx: np.ndarray,
+                    d_color: np.ndarray, d_alpha: np.ndarray, d_depth: np.ndarray,
+                    d_normal: np.ndarray, d_median: np.ndarray, n_workers: int) -> np.ndarray:
+    """Per-visible-splat 2D gradients g2 [V, NG] float32 from the per-pixel loss gradients
+    d_color / d_normal [H, W, 3], d_alpha / d_depth / d_median [H, W].
+
+    Deterministic and bitwise the same for any thread count: every splat sums its per-tile
+    gradients in ascending tile order. One worker runs the serial version."""
+    if n_workers <= 1:
+        return _raster_backward_serial(fo, box, tile_offsets, inst, n_vis, width, height, tile,
+                                       T_out, n_contrib, med_idx, d_color, d_alpha, d_depth,
+                                       d_normal, d_median)
+    return _raster_backward_tiles(fo, box, tile_offsets, inst, row_start, pos, n_vis, width,
+                                  height, tile, T_out, n_contrib, med_idx, d_color, d_alpha,
+                                  d_depth, d_normal, d_median, n_workers)
