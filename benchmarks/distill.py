@@ -52,12 +52,8 @@ def registry(args) -> str:
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
-                   max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad, student=student)
-
-
-def teacher_route(args) -> dict:
-    """Training-env overrides for the teacher's route (the comfortable one when --expert-comfort > 0)."""
-    return {"episode": {"expert_comfort": args.expert_comfort}} if args.expert_comfort > 0 else {}
+                   max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
+                   teacher_comfort=args.teacher_comfort, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -75,7 +71,7 @@ def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
-                                     "fidelity": args.fidelity, **teacher_route(args)},
+                                     "fidelity": args.fidelity},
                          distill=distill_config(args))
     t0, cpu0 = time.perf_counter(), cpu_seconds()
     result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
@@ -117,8 +113,7 @@ def run_study_bench(args, run: Run) -> None:
     config = StudyConfig(registry=reg, out_dir=str(args.root / f"study_{args.steps}{args.tag}"),
                          counts=[int(c) for c in args.counts.split(",")], seeds=len(args.seeds),
                          total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
-                         env_kwargs={"training": True, "fidelity": args.fidelity, **teacher_route(args)},
-                         stuck_steps=10,
+                         env_kwargs={"training": True, "fidelity": args.fidelity}, stuck_steps=10,
                          distill=distill_config(args), eval_max_steps=args.eval_max_steps or None)
     rows = run_study(config)
     for n, agg in aggregate(rows).items():
@@ -144,8 +139,8 @@ def main() -> None:
     ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,
                     help="random-shift augmentation in student pixels (0: off)")
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
-    ap.add_argument("--expert-comfort", type=float, default=0.0,
-                    help="m the teacher's route prefers to keep from blocked cells (0: the shortest route)")
+    ap.add_argument("--teacher-comfort", type=float, default=DistillConfig.teacher_comfort,
+                    help="m the teacher's route keeps from blocked cells where there is room (0: the shortest route)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

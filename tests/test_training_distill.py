@@ -14,7 +14,8 @@ import torch
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import STUDENT_NAME, Batch, Dataset, DistillError, scene_groups, train_distill
+from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, scene_groups,
+                                      train_distill)
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
@@ -231,3 +232,15 @@ def test_dataset_gather_reads_rows_across_rounds_without_concatenating():
     assert len(empty) == 0 and empty.rows() == 0
     with pytest.raises(DistillError, match="no_labels"):
         empty.gather(np.zeros(1, np.int64))
+
+
+def test_the_teachers_route_keeps_its_comfort_distance_unless_the_env_arguments_say_otherwise(tmp_path):
+    config = tiny_config("reg", tmp_path / "run", 100)
+    config.scene_ids = ["a", "b"]
+    assert config.distill.teacher_comfort == 0.8
+    assert all(s.kwargs["episode"] == {"expert_comfort": 0.8} for s in env_specs(config))
+    config.env_kwargs["episode"] = {"expert_comfort": 0.5, "clearance": 0.5}  # given: kept as given
+    assert env_specs(config)[0].kwargs["episode"] == {"expert_comfort": 0.5, "clearance": 0.5}
+    config.env_kwargs.pop("episode")
+    config.distill.teacher_comfort = 0.0  # the shortest route: the env's default, nothing passed
+    assert "episode" not in env_specs(config)[0].kwargs

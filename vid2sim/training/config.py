@@ -62,6 +62,10 @@ class DistillConfig:
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
     drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)
+    # m the teacher's route keeps from blocked cells where there is room (the training envs'
+    # EpisodeConfig.expert_comfort, envs/planning.py; 0: the shortest route, which grazes the 0.45 m
+    # clearance in every bend): a student that strays from a route down the middle still has room
+    teacher_comfort: float = 0.8
     train_max_steps: int = 500  # episode limit while collecting (truncation); evaluation keeps the env's 3000
     threads: int = 0  # torch threads of the learner (0: torch's default)
     student: StudentConfig = field(default_factory=StudentConfig)

@@ -2,7 +2,10 @@
 
 The student (`training/student.py`) sees exactly the deployable observation: camera frames and
 the goal vector. The teacher (`envs/expert.py`, pure pursuit on the episode's A* path around the
-obstacles, with its walkable-map arc check) sees the map and the path. `train_distill(config)`
+obstacles, with its walkable-map arc check) sees the map and the path; its route keeps
+`teacher_comfort` m from blocked cells where there is room (the training envs'
+`EpisodeConfig.expert_comfort`), so the labels steer a student that strayed back towards the
+middle before it touches a facade or a pole. `train_distill(config)`
 does, in order:
   1. resolve the scene ids (the registry split's nested train subset) and write the run folder
      (config.json, scenes.json, code_version.txt, student.json);
@@ -169,6 +172,9 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     base.setdefault("checkout_root", str(Path(config.run_dir) / "scenes"))
     if config.distill.train_max_steps:
         base.setdefault("max_episode_steps", config.distill.train_max_steps)
+    episode = base.get("episode", {})
+    if config.distill.teacher_comfort > 0 and isinstance(episode, dict):  # env arguments given win
+        base["episode"] = {"expert_comfort": config.distill.teacher_comfort, **episode}
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
                     config.stuck_steps, teacher=True)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
