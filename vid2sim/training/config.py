@@ -116,8 +116,10 @@ class TrainConfig:
         sac = dict(d.pop("sac", {}))
         if "net_arch" in sac:
             sac["net_arch"] = tuple(sac["net_arch"])
-        distill = DistillConfig(**d.pop("distill", {}))
-        return cls(**d, sac=SACConfig(**sac), distill=distill)
+        distill = dict(d.pop("distill", {}))
+        if distill:  # a run recorded before the teacher kept a comfort distance had the shortest route
+            distill.setdefault("teacher_comfort", 0.0)
+        return cls(**d, sac=SACConfig(**sac), distill=DistillConfig(**distill))
 
     def save(self, path: Path) -> None:
         path.write_text(json.dumps(self.to_dict(), indent=2))
