@@ -141,9 +141,8 @@ class NavEnv(gym.Env):
         peds = int(rng.integers(lo, hi + 1)) if self.task == "socialnav" else 0
         self.actors = EpisodeActors(self.world.physics.client)
         inflation = self.world.assets.walkable_inflation
-        comfort = max(0.0, c.episode.expert_comfort - inflation) if c.episode.expert_comfort > 0 else 0.0
         self.actors.spawn(self.world.assets.walkable, self.world.planner, ep.path, rng, c.obstacles, peds,
-                          pre_inflated=inflation, comfort=comfort)
+                          pre_inflated=inflation, comfort=max(0.0, c.episode.expert_comfort - inflation))
         self.shortest = path_length(self.actors.shortest_path)
         self.augmenter.reset(rng)
         self.state = RobotState(float(ep.start[0]), float(ep.start[1]), ep.start_yaw)

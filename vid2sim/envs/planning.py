@@ -30,6 +30,7 @@ from vid2sim.formats.walkable import WalkableGrid
 
 SQRT2 = math.sqrt(2.0)
 COMFORT_WEIGHT = 3.0  # extra step-cost factor of a free cell right at the clearance boundary
+NO_WEIGHT = np.zeros((0, 0))  # `_search`'s weight for plain step costs (nothing allocated per search)
 
 
 class GridPlanner:
@@ -48,9 +49,10 @@ class GridPlanner:
         self.origin = np.asarray(grid.origin, np.float64).reshape(2)
         self.resolution = float(grid.resolution)
         self.clearance = float(clearance)
-        self.free = inflate(self.raw > 0, self.clearance / self.resolution)  # [H, W] bool
         self.comfort = max(float(comfort), self.clearance)
-        self._weight, self._roomy = self._comfort_layers()  # [H, W] float, [H, W] bool
+        room = _room(self.raw > 0)  # [H, W] cells to the nearest blocked cell centre
+        self.free = room > self.clearance / self.resolution  # [H, W] bool (`inflate`)
+        self._weight, self._roomy = self._comfort_layers(room * self.resolution)  # [H, W] float, bool
         self.snap = float(snap)
         self.smooth = smooth
         # nearest free cell for every cell (for snapping)
@@ -60,13 +62,11 @@ class GridPlanner:
         else:
             self._nearest = None
 
-    def _comfort_layers(self) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
-        """Step-cost factor of every cell [H, W] and the cells at least `comfort` from anything
-        blocked [H, W]; (None, None) without a comfort distance."""
+    def _comfort_layers(self, room: np.ndarray) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
+        """Step-cost factor of every cell [H, W] and the cells more than `comfort` from anything
+        blocked [H, W], from each cell's room in metres [H, W]; (None, None) without a comfort distance."""
         if self.comfort <= self.clearance:
             return None, None
-        padded = np.pad(self.raw > 0, 1, constant_values=False)
-        room = ndimage.distance_transform_edt(padded)[1:-1, 1:-1] * self.resolution  # [H, W] m
         tight = np.clip((self.comfort - room) / (self.comfort - self.clearance), 0.0, 1.0)
         return 1.0 + COMFORT_WEIGHT * tight, room > self.comfort
 
@@ -191,9 +191,14 @@ def inflate(free: np.ndarray, radius_cells: float) -> np.ndarray:
     """Free cells at least `radius_cells` from any blocked cell or the border ([H, W] bool)."""
     if radius_cells <= 0:
         return free.copy()
+    return _room(free) > radius_cells
+
+
+def _room(free: np.ndarray) -> np.ndarray:
+    """Distance in cells from every cell to the nearest blocked cell centre or the grid border
+    [H, W] (0 on blocked cells)."""
     padded = np.pad(free, 1, constant_values=False)
-    dist = ndimage.distance_transform_edt(padded)[1:-1, 1:-1]  # cells to nearest blocked centre
-    return dist > radius_cells
+    return ndimage.distance_transform_edt(padded)[1:-1, 1:-1]
 
 
 def path_length(points: np.ndarray) -> float:
@@ -249,9 +254,10 @@ def _search(free: np.ndarray, weight: np.ndarray, sr: int, sc: int, gr: int, gc:
             ) -> tuple[np.ndarray, np.ndarray]:
     """Best-first search from (sr, sc): A* with the octile heuristic towards (gr, gc), stopping
     there, or a full Dijkstra when gr < 0. A step into a cell costs its length times the cell's
-    weight [H, W] (>= 1, so the heuristic stays admissible). Returns (cost in cells [H, W],
-    parent flat index [H, W], -1 = none)."""
+    weight [H, W] (>= 1, so the heuristic stays admissible; an empty weight: 1 everywhere).
+    Returns (cost in cells [H, W], parent flat index [H, W], -1 = none)."""
     H, W = free.shape
+    weighted = weight.size > 0
     dist = np.full((H, W), np.inf)
     parent = np.full((H, W), -1, np.int64)
     closed = np.zeros((H, W), np.bool_)
@@ -274,7 +280,7 @@ def _search(free: np.ndarray, weight: np.ndarray, sr: int, sc: int, gr: int, gc:
                 continue
             if k >= 4 and not (free[rr, c] and free[r, cc]):
                 continue  # no corner cutting
-            nd = dist[r, c] + cost8[k] * weight[rr, cc]
+            nd = dist[r, c] + (cost8[k] * weight[rr, cc] if weighted else cost8[k])
             if nd < dist[rr, cc]:
                 dist[rr, cc] = nd
                 parent[rr, cc] = cur
@@ -292,7 +298,7 @@ def astar(free: np.ndarray, start: tuple[int, int], goal: tuple[int, int],
     weight: per-cell step-cost factor [H, W] >= 1 (None: 1 everywhere, the shortest path)."""
     if not (free[start] and free[goal]):
         return None
-    w = np.ones(free.shape) if weight is None else np.asarray(weight, np.float64)
+    w = NO_WEIGHT if weight is None else np.asarray(weight, np.float64)
     dist, parent = _search(free, w, start[0], start[1], goal[0], goal[1])
     if not np.isfinite(dist[goal]):
         return None
@@ -309,4 +315,4 @@ def dijkstra(free: np.ndarray, start: tuple[int, int]) -> np.ndarray:
     """Geodesic distance in cells from start over an 8-connected bool grid [H, W] (+inf unreachable)."""
     if not free[start]:
         return np.full(free.shape, np.inf)
-    return _search(free, np.ones(free.shape), start[0], start[1], -1, -1)[0]
+    return _search(free, NO_WEIGHT, start[0], start[1], -1, -1)[0]
