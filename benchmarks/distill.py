@@ -1,6 +1,6 @@
 """Pixel agents distilled from the A* teacher: held-out success over seeds, SocialNav, the scene-count study.
 
-    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav]
+    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav] [--train-eval 8]
     python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
     python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 small rounds (smoke run)
 
@@ -53,7 +53,7 @@ def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
-                   teacher_comfort=args.teacher_comfort, student=student)
+                   teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -98,6 +98,8 @@ def run_heldout(args, run: Run) -> None:
             metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
             record_eval(run, f"{task} seed {seed}", rep, budget, metrics)
             successes[task] += [float(r["success"]) for r in rep.records]
+        if args.train_eval:
+            eval_training_streets(args, run, reg, run_dir, budget)
     for task, values in successes.items():
         if values:
             ci = bootstrap_ci(np.array(values))
@@ -105,6 +107,17 @@ def run_heldout(args, run: Run) -> None:
                                                                 "seeds": list(args.seeds), "env_steps": args.steps})
             print(json.dumps({"case": f"{task} all seeds", "sr": [round(ci.mean, 3), round(ci.low, 3),
                                                                   round(ci.high, 3)], "episodes": len(values)}))
+
+
+def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict) -> None:
+    """The held-out protocol on the first `--train-eval` of the run's own training streets: SR there
+    against held-out SR separates what the student failed to learn from what it failed to transfer."""
+    scenes = TrainConfig.load(run_dir / "config.json").scene_ids[:args.train_eval]
+    rep = evaluate(EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes, trials=args.trials,
+                              obstacles="static", max_steps=args.eval_max_steps or None,
+                              checkout_root=str(args.root / "checkouts")))
+    (run_dir / "eval_pointnav_training_streets.json").write_text(rep.to_json())
+    record_eval(run, f"pointnav seed {budget['seed']}, {len(scenes)} training streets", rep, budget)
 
 
 def run_study_bench(args, run: Run) -> None:
@@ -131,7 +144,7 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
     ap.add_argument("--steps-per-round", type=int, default=4000)
-    ap.add_argument("--updates-per-round", type=int, default=800)
+    ap.add_argument("--updates-per-round", type=int, default=DistillConfig.updates_per_round)
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
@@ -141,10 +154,14 @@ def main() -> None:
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
     ap.add_argument("--teacher-comfort", type=float, default=DistillConfig.teacher_comfort,
                     help="m the teacher's route keeps from blocked cells where there is room (0: the shortest route)")
+    ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
+                    help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)
     ap.add_argument("--socialnav", action="store_true", help="heldout: also evaluate with pedestrians")
+    ap.add_argument("--train-eval", type=int, default=0,
+                    help="heldout: also evaluate on this many of the run's training streets (same protocol)")
     ap.add_argument("--counts", default="1,5,15,25,30", help="study: training-scene counts")
     ap.add_argument("--num-cpus", type=int, default=2, help="study: local Ray runtime CPUs (one training each)")
     ap.add_argument("--quick", action="store_true", help="6 streets, one seed, 2 rounds of 1000 steps, 5 trials")

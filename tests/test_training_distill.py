@@ -14,8 +14,8 @@ import torch
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, scene_groups,
-                                      train_distill)
+from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, make_optimizer,
+                                      scene_groups, train_distill)
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
@@ -248,3 +248,21 @@ def test_the_teachers_route_keeps_its_comfort_distance_unless_the_env_arguments_
     assert TrainConfig.from_dict(config.to_dict()).distill.teacher_comfort == 0.8
     config.distill.teacher_comfort = 0.0  # the shortest route: the env's default, nothing passed
     assert "episode" not in env_specs(config)[0].kwargs
+
+
+def test_weight_decay_comes_from_the_config_also_over_an_old_adam_state():
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2))
+    old = torch.optim.Adam(student.parameters(), lr=3e-4)  # what runs saved before the setting existed
+    student.act(torch.zeros(1, 2, 3, 36, 64), torch.zeros(1, 6, 2)).sum().backward()
+    old.step()
+    optimizer = make_optimizer(student, DistillConfig(weight_decay=0.5, learning_rate=1e-2), old.state_dict())
+    assert all(g["weight_decay"] == 0.5 and g["decoupled_weight_decay"] for g in optimizer.param_groups)
+    assert len(optimizer.state) == len(old.state)  # the moments are kept
+    weight = student.head[-1].weight
+    before = weight.detach().clone()
+    optimizer.zero_grad(set_to_none=False)  # zero gradients: only the decay moves the weights
+    for group in optimizer.param_groups:
+        for p in group["params"]:
+            optimizer.state[p]["exp_avg"].zero_()
+    optimizer.step()
+    assert torch.allclose(weight.detach(), before * (1 - 1e-2 * 0.5), atol=1e-7)

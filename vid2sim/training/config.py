@@ -55,9 +55,10 @@ class DistillConfig:
     beta0: float = 1.0  # probability that the teacher drives an episode in round 0 (1: behaviour cloning)
     beta_decay: float = 0.5  # the teacher's share of episodes is multiplied by this every round
     min_beta: float = 0.0  # floor of the teacher's share
-    updates_per_round: int = 1500  # Adam steps on the aggregated dataset after each round
+    updates_per_round: int = 400  # AdamW steps on the aggregated dataset after each round (more overfit)
     batch_size: int = 128  # samples per Adam step
     learning_rate: float = 3e-4  # Adam step size
+    weight_decay: float = 0.0  # decoupled weight decay (AdamW) of the student's weights per unit learning rate
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike

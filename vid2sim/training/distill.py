@@ -15,7 +15,7 @@ does, in order:
      teacher with probability beta_k = max(min_beta, beta0 * beta_decay^k), else by the student
      (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
-  4. fit the student on the aggregated dataset: `updates_per_round` Adam steps of MSE to the
+  4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
      labels, on batches with random-shift augmentation (DrQ), warm-started from the last round;
   5. write the round's data shard (data/round_K.npz, written once) and checkpoints/last.pt (student,
      optimizer, round, history), log to TensorBoard (tb/) and to the returned history.
@@ -41,7 +41,7 @@ import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv
 from torch.utils.tensorboard import SummaryWriter
 
-from vid2sim.training.config import EVICTIONS, TrainConfig
+from vid2sim.training.config import EVICTIONS, DistillConfig, TrainConfig
 from vid2sim.training.rollouts import EnvSpec
 from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
 from vid2sim.training.student import StudentPolicy, random_shift
@@ -247,7 +247,7 @@ class Collector:
 # ------------------------------------------------------------------ learning
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
         batch_size: int, shift_pad: int, rng: np.random.Generator) -> dict[str, float]:
-    """`updates` Adam steps of MSE to the teacher's labels on random-shifted batches drawn
+    """`updates` AdamW steps of MSE to the teacher's labels on random-shifted batches drawn
     uniformly from `data` (a Dataset, sampled in place, or one Batch)."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
@@ -283,6 +283,18 @@ def make_student(config: TrainConfig, env: VecEnv) -> StudentPolicy:
     return StudentPolicy(config.distill.student, space["image"].shape, space["vector"].shape).eval()
 
 
+def make_optimizer(student: StudentPolicy, d: DistillConfig, state: Optional[dict] = None) -> torch.optim.Optimizer:
+    """AdamW at the run's learning rate and decoupled weight decay; `state`: a checkpoint's optimizer
+    state, whose moments are kept while the config's weight decay applies (runs saved before the
+    setting existed used plain Adam, the same as a decay of 0)."""
+    optimizer = torch.optim.AdamW(student.parameters(), lr=d.learning_rate, weight_decay=d.weight_decay)
+    if state is not None:
+        optimizer.load_state_dict(state)
+        for group in optimizer.param_groups:
+            group.update(lr=d.learning_rate, weight_decay=d.weight_decay, decoupled_weight_decay=True)
+    return optimizer
+
+
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
                     num_timesteps: int, history: list[dict], rng: np.random.Generator) -> None:
     ckpt = {"student": student.checkpoint(), "optimizer": optimizer.state_dict(), "round": round_index,
@@ -314,13 +326,13 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
         (run / "student.json").write_text(json.dumps({"student": d.student.to_dict(),
                                                       "image_shape": list(student.image_shape),
                                                       "vector_shape": list(student.vector_shape)}, indent=2))
-        optimizer = torch.optim.Adam(student.parameters(), lr=d.learning_rate)
+        optimizer = make_optimizer(student, d)
         rng = np.random.default_rng(config.seed)
         dataset, history, start, done = Dataset(d.max_samples, d.eviction), [], 0, 0
         if resume:
             ckpt = load_checkpoint(run)
             student.load_state_dict(ckpt["student"]["state_dict"])
-            optimizer.load_state_dict(ckpt["optimizer"])
+            optimizer = make_optimizer(student, d, ckpt["optimizer"])
             rng.bit_generator.state = ckpt["rng"]
             start, done, history = ckpt["round"] + 1, ckpt["num_timesteps"], ckpt["history"]
             for k in range(start):
