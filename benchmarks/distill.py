@@ -26,6 +26,7 @@ import sys
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Optional
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
@@ -81,6 +82,13 @@ def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     return run_dir, budget
 
 
+def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[list[str]] = None) -> EvalConfig:
+    """The benchmark's evaluation protocol for one student (default scenes: the split's held-out ones)."""
+    return EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes or [], trials=args.trials,
+                      obstacles=obstacles, max_steps=args.eval_max_steps or None,
+                      checkout_root=str(args.root / "checkouts"))
+
+
 def run_heldout(args, run: Run) -> None:
     reg = registry(args)
     successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
@@ -91,9 +99,7 @@ def run_heldout(args, run: Run) -> None:
         for task, obstacles in (("pointnav", "static"), ("socialnav", "dynamic")):
             if task == "socialnav" and not args.socialnav:
                 continue
-            rep = evaluate(EvalConfig(registry=reg, policy=str(run_dir), trials=args.trials, obstacles=obstacles,
-                                      max_steps=args.eval_max_steps or None,
-                                      checkout_root=str(args.root / "checkouts")))
+            rep = evaluate(eval_config(args, reg, run_dir, obstacles))
             (run_dir / f"eval_{task}.json").write_text(rep.to_json())
             metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
             record_eval(run, f"{task} seed {seed}", rep, budget, metrics)
@@ -113,9 +119,7 @@ def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict)
     """The held-out protocol on the first `--train-eval` of the run's own training streets: SR there
     against held-out SR separates what the student failed to learn from what it failed to transfer."""
     scenes = TrainConfig.load(run_dir / "config.json").scene_ids[:args.train_eval]
-    rep = evaluate(EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes, trials=args.trials,
-                              obstacles="static", max_steps=args.eval_max_steps or None,
-                              checkout_root=str(args.root / "checkouts")))
+    rep = evaluate(eval_config(args, reg, run_dir, "static", scenes))
     (run_dir / "eval_pointnav_training_streets.json").write_text(rep.to_json())
     record_eval(run, f"pointnav seed {budget['seed']}, {len(scenes)} training streets", rep, budget)
 
