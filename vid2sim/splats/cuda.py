@@ -130,7 +130,7 @@ def _median_depth(gsplat, meta: dict, depths: torch.Tensor, W: int, H: int) -> t
         first = torch.full((H * W,), gs.numel(), dtype=torch.long, device=gs.device)
         first.scatter_reduce_(0, pix[hit], pos[hit], reduce="amin")
         has = first < gs.numel()
-    return median.index_put((has.nonzero().squeeze(1),), depths[gs[first[has]]])
+    return median.index_put((has.nonzero().squeeze(1),), depths[gs[first[has]]]).reshape(H, W)
 
 
 def render_batch(scenes: list, cameras: list[Camera], scene_ids: list[int],

@@ -3,7 +3,7 @@
 Written for clarity, not speed: per image tile, every visible splat whose square
 [mean2d +- radius] touches the tile is evaluated at every pixel of the tile (dense
 [P, V] tensors), and autograd provides all gradients. It is the ground truth the `cpu` and `cuda`
-backends are tested against, and it runs in float32 or float64 (for gradcheck).
+backends are tested against; it runs in float32 or float64 (for gradcheck), on the device of `means`.
 """
 
 from __future__ import annotations
@@ -77,7 +77,7 @@ def project(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     """Steps 1-8 of the spec: cull, project and colour; returns the visible splats."""
     dtype = means.dtype
     W, H = settings.width, settings.height
-    w2c = camera.world_to_cam.to(dtype)
+    w2c = camera.world_to_cam.to(means.device, dtype)
     R_wc, t_wc = w2c[:3, :3], w2c[:3, 3]
     t_all = means @ R_wc.T + t_wc  # [N, 3]
     z = t_all[:, 2].detach()
@@ -88,7 +88,7 @@ def project(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     M = R * torch.exp(log_scales[ids])[:, None, :]  # R S
     cov_cam = R_wc @ (M @ M.transpose(1, 2)) @ R_wc.T  # [V, 3, 3]
     J = _jacobian(t, camera, W, H)
-    cov2d = J @ cov_cam @ J.transpose(1, 2) + LOWPASS * torch.eye(2, dtype=dtype)
+    cov2d = J @ cov_cam @ J.transpose(1, 2) + LOWPASS * torch.eye(2, dtype=dtype, device=means.device)
     a, b, c = cov2d[:, 0, 0], cov2d[:, 0, 1], cov2d[:, 1, 1]
     det = a * c - b * b
     mean2d = torch.stack([camera.fx * t[:, 0] / t[:, 2] + camera.cx,
@@ -111,7 +111,7 @@ def project(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     conics = torch.stack([c / det, -b / det, a / det], dim=-1)
 
     degree = min(settings.active_sh_degree, sh_degree_from_coeffs(sh.shape[1]))
-    dirs = torch.nn.functional.normalize(means[ids] - camera.center.to(dtype), dim=-1)
+    dirs = torch.nn.functional.normalize(means[ids] - camera.center.to(means.device, dtype), dim=-1)
     colors = torch.clamp_min(eval_sh(degree, sh[ids], dirs) + 0.5, 0.0)
 
     axis = torch.argmin(log_scales[ids].detach(), dim=1)  # [V], first minimum on ties
@@ -169,10 +169,10 @@ def _tiles(width: int, height: int, size: int):
             yield x0, min(x0 + size, width), y0, min(y0 + size, height)
 
 
-def pixel_centres(width: int, height: int, dtype: torch.dtype) -> torch.Tensor:
+def pixel_centres(width: int, height: int, dtype: torch.dtype, device=None) -> torch.Tensor:
     """Pixel centres [H*W, 2] as (x, y) = (j + 0.5, i + 0.5), row-major."""
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype) + 0.5,
-                            torch.arange(width, dtype=dtype) + 0.5, indexing="ij")
+    ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype, device=device) + 0.5,
+                            torch.arange(width, dtype=dtype, device=device) + 0.5, indexing="ij")
     return torch.stack([xs.reshape(-1), ys.reshape(-1)], dim=-1)
 
 
@@ -198,7 +198,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     for culled splats.
     """
     check_camera(camera, settings)
-    dtype, N = means.dtype, means.shape[0]
+    dtype, dev, N = means.dtype, means.device, means.shape[0]
     W, H = settings.width, settings.height
     proj = project(means, quats, log_scales, opacity_logits, sh, camera, settings)
 
@@ -211,7 +211,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
 
     # Tiles only bound the work: a splat can reach a pixel only inside its square
     # [mean2d +- radius], so the result is the same for any tile size.
-    pix_all = pixel_centres(W, H, dtype)  # [H*W, 2]
+    pix_all = pixel_centres(W, H, dtype, means.device)  # [H*W, 2]
     with torch.no_grad():
         lo = proj.means2d.detach() - proj.radii[:, None].to(dtype)  # [V, 2]
         hi = proj.means2d.detach() + proj.radii[:, None].to(dtype)
@@ -219,11 +219,11 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     for x0, x1, y0, y1 in _tiles(W, H, max(1, settings.tile_size)):
         sel = torch.nonzero((lo[:, 0] < x1) & (hi[:, 0] > x0)
                             & (lo[:, 1] < y1) & (hi[:, 1] > y0)).squeeze(1)
-        rows = torch.arange(y0, y1)[:, None] * W + torch.arange(x0, x1)[None, :]
+        rows = (torch.arange(y0, y1, device=dev)[:, None] * W + torch.arange(x0, x1, device=dev)[None, :])
         rows = rows.reshape(-1)
         offset = None
         if absgrad and m2d.requires_grad and sel.numel():
-            offset = torch.zeros(rows.numel(), sel.numel(), 2, dtype=dtype, requires_grad=True)
+            offset = torch.zeros(rows.numel(), sel.numel(), 2, dtype=dtype, device=dev, requires_grad=True)
             offset.register_hook(_accumulate_into(absgrad_buf, proj.ids[sel], absolute=True))
         parts.append(_composite(pix_all[rows], _subset(proj, sel), m2d[sel], offset))
         where.append(rows)
@@ -234,7 +234,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
 
     means2d_out = means.new_zeros(N, 2)
     means2d_out[proj.ids] = proj.means2d.detach()
-    radii = torch.zeros(N, dtype=torch.int32)
+    radii = torch.zeros(N, dtype=torch.int32, device=dev)
     radii[proj.ids] = proj.radii
     return RasterOutput(
         color_accum=color.reshape(H, W, 3), alpha=acc.reshape(H, W),
