@@ -51,10 +51,11 @@ def registry(args) -> str:
 
 
 def distill_config(args) -> DistillConfig:
-    student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride)
+    student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, clearance_rays=args.clearance_rays)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
-                   teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay, student=student)
+                   teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
+                   clearance_weight=args.clearance_weight, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -160,6 +161,10 @@ def main() -> None:
                     help="m the teacher's route keeps from blocked cells where there is room (0: the shortest route)")
     ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
                     help="decoupled weight decay of the student (AdamW)")
+    ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,
+                    help="auxiliary target: the teacher's clearance over the view, this many rays (0: off)")
+    ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
+                    help="weight of the auxiliary clearance loss")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

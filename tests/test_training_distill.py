@@ -14,8 +14,8 @@ import torch
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, make_optimizer,
-                                      scene_groups, train_distill)
+from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, fit,
+                                      make_optimizer, scene_groups, train_distill)
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
@@ -266,3 +266,28 @@ def test_weight_decay_comes_from_the_config_also_over_an_old_adam_state():
             optimizer.state[p]["exp_avg"].zero_()
     optimizer.step()
     assert torch.allclose(weight.detach(), before * (1 - 1e-2 * 0.5), atol=1e-7)
+
+
+def test_the_clearance_target_is_collected_learnt_and_left_out_of_the_export(street_registry, tmp_path):
+    config = tiny_config(street_registry, tmp_path / "run", 60)
+    config.distill.student = StudentConfig(**{**TINY.to_dict(), "clearance_rays": 5})
+    result = train_distill(config)
+    shard = Batch.load(tmp_path / "run" / "data" / "round_000.npz")
+    assert shard.clearance.shape == (len(shard.actions), 5) and shard.clearance.dtype == np.float32
+    assert 0.0 < shard.clearance.min() and shard.clearance.max() <= 1.0
+    assert "clearance_loss" in result.history[0]
+    student = load_student(tmp_path / "run" / STUDENT_NAME)
+    optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3))
+    rng = np.random.default_rng(0)
+    before = fit(student, optimizer, shard, 1, 32, 0, rng, clearance_weight=1.0)["clearance_loss"]
+    after = fit(student, optimizer, shard, 150, 32, 0, rng, clearance_weight=1.0)["clearance_loss"]
+    assert after < 0.5 * before
+    with pytest.raises(DistillError, match="clearance_mismatch"):
+        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]), 1, 4, 0, rng, 1.0)
+    out = export_policy(tmp_path / "run", tmp_path / "export")  # the graph is the action head alone
+    image = np.random.default_rng(1).integers(0, 256, (2, 6, 3, 72, 128), dtype=np.uint8)
+    vector = np.zeros((2, 6, 2), np.float32)
+    with torch.no_grad():
+        trained = load_student(tmp_path / "run" / STUDENT_NAME)
+        expected = trained(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
+    np.testing.assert_allclose(NavPolicy(out, "onnx").act_stacked(image, vector), expected, atol=1e-5)

@@ -156,3 +156,28 @@ def test_bc_pretraining_fits_the_actor_to_the_demonstrations(street_registry, tm
     assert pre.pretrained and not fresh.pretrained
     assert pre._n_updates >= 300 > fresh._n_updates
     assert mse_pre < 0.5 * mse_fresh  # the actor imitates the expert before SAC's first own action
+
+
+def test_teacher_clearance_reads_the_view_left_to_right(street_registry, tmp_path):
+    """K rays over the camera's field of view, left to right: turning left by one ray spacing moves
+    every reading one column to the right; a wall is within range in some heading."""
+    from vid2sim.envs.sensing import camera_hfov_deg
+    from vid2sim.training.wrappers import CLEARANCE_RANGE, TeacherLabels
+    env = TeacherLabels(gym.make("vid2sim/PointNav-v0", registry=str(street_registry), scenes=SCENE,
+                                 training=False, fidelity="exact", checkout_root=str(tmp_path)), clearance_rays=9)
+    _, info = env.reset(seed=0)
+    first = info["teacher_clearance"]
+    assert first.shape == (9,) and first.dtype == np.float32 and ((first > 0) & (first <= 1)).all()
+    u = env.unwrapped
+    step = np.radians(camera_hfov_deg(u.config.camera.width, u.config.camera.focal)) / 8
+    x, y, yaw = u.state.x, u.state.y, u.state.yaw
+    views = []
+    for turn in (0.0, step, np.pi / 2, np.pi, 1.5 * np.pi):
+        u.state = RobotState(x, y, yaw + turn)
+        views.append(env.clearance())
+    np.testing.assert_allclose(views[0], first)
+    np.testing.assert_allclose(views[1][1:], views[0][:-1], atol=0.1 / CLEARANCE_RANGE)  # one march step
+    assert min(v.min() for v in views) < 0.9  # a facade or the kerb within 4.5 m in some heading
+    with pytest.raises(ValueError, match="clearance_rays"):
+        TeacherLabels(env.env, clearance_rays=-1)
+    env.close()

@@ -59,6 +59,9 @@ class DistillConfig:
     batch_size: int = 128  # samples per Adam step
     learning_rate: float = 3e-4  # Adam step size
     weight_decay: float = 0.0  # decoupled weight decay (AdamW) of the student's weights per unit learning rate
+    # weight of the auxiliary clearance loss (MSE to the teacher's privileged readings over the view) when
+    # the student has a clearance head (student.clearance_rays > 0)
+    clearance_weight: float = 1.0
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike

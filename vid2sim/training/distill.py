@@ -17,6 +17,9 @@ does, in order:
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
      labels, on batches with random-shift augmentation (DrQ), warm-started from the last round;
+     a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
+     teacher's privileged clearance over the view (K ray ranges, `TeacherLabels`), an auxiliary
+     target that asks the encoder to see how far away what it faces is (`clearance_weight`);
   5. write the round's data shard (data/round_K.npz, written once) and checkpoints/last.pt (student,
      optimizer, round, history), log to TensorBoard (tb/) and to the returned history.
 Resume (`resume=True`) reloads the shards and checkpoints/last.pt and goes on at the next round.
@@ -55,19 +58,29 @@ class DistillError(ValueError):
 
 @dataclass
 class Batch:
-    """Labelled states of one round: preprocessed frames, goal vectors, teacher actions."""
+    """Labelled states of one round: preprocessed frames, goal vectors, teacher actions and (with
+    the auxiliary target) the teacher's clearance readings."""
 
     frames: np.ndarray  # uint8 [N, frames, C, h, w]
     vectors: np.ndarray  # float32 [N, 6, 2]
     actions: np.ndarray  # float32 [N, 2]
+    clearance: Optional[np.ndarray] = None  # float32 [N, K] in [0, 1]; [N, 0] without the target
+
+    def __post_init__(self) -> None:
+        if self.clearance is None:
+            self.clearance = np.zeros((len(self.actions), 0), np.float32)
 
     def save(self, path: Path) -> None:
-        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions)
+        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance)
 
     @classmethod
     def load(cls, path: Path) -> "Batch":
-        with np.load(path) as z:
-            return cls(z["frames"], z["vectors"], z["actions"])
+        with np.load(path) as z:  # shards written before the clearance target have none
+            return cls(z["frames"], z["vectors"], z["actions"], z["clearance"] if "clearance" in z else None)
+
+    def take(self, idx: np.ndarray) -> "Batch":
+        """Rows idx of every field."""
+        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx])
 
 
 class Dataset:
@@ -117,15 +130,17 @@ class Dataset:
         rows = np.asarray(idx, np.int64) + (len(self) - self.rows())  # [B] rows of the concatenation
         part = np.searchsorted(starts, rows, side="right") - 1  # [B]
         first = self.parts[0]
-        out = Batch(np.empty((len(rows), *first.frames.shape[1:]), first.frames.dtype),
-                    np.empty((len(rows), *first.vectors.shape[1:]), first.vectors.dtype),
-                    np.empty((len(rows), *first.actions.shape[1:]), first.actions.dtype))
+        out = Batch(*(np.empty((len(rows), *a.shape[1:]), a.dtype)
+                      for a in (first.frames, first.vectors, first.actions, first.clearance)))
         for j in np.unique(part):
             hit = part == j
             local = rows[hit] - starts[j]
             src = self.parts[j]
+            if src.clearance.shape[1] != out.clearance.shape[1]:
+                raise DistillError(f"clearance_mismatch: round data with {src.clearance.shape[1]} and "
+                                   f"{out.clearance.shape[1]} clearance rays cannot be mixed")
             out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
-            out.actions[hit] = src.actions[local]
+            out.actions[hit], out.clearance[hit] = src.actions[local], src.clearance[local]
         return out
 
     def arrays(self) -> Batch:
@@ -147,7 +162,7 @@ def thin(batch: Batch, keep: int) -> Batch:
     if keep >= n:
         return batch
     idx = np.linspace(0, n - 1, keep).round().astype(np.int64) if keep > 0 else np.zeros(0, np.int64)
-    return Batch(batch.frames[idx], batch.vectors[idx], batch.actions[idx])
+    return batch.take(idx)
 
 
 # ------------------------------------------------------------------ set-up
@@ -175,8 +190,9 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     episode = base.get("episode", {})
     if config.distill.teacher_comfort > 0 and isinstance(episode, dict):  # env arguments given win
         base["episode"] = {"expert_comfort": config.distill.teacher_comfort, **episode}
+    rays = config.distill.student.clearance_rays
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
-                    config.stuck_steps, teacher=True)
+                    config.stuck_steps, teacher=True, teacher_clearance_rays=rays)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
 
 
@@ -214,9 +230,10 @@ class Collector:
         stats, t0 = RoundStats(), time.perf_counter()
         self._check_labels()
         self.teacher_drives = self.rng.random(self.env.num_envs) < beta_k  # a new round redraws the drivers
-        frames, vectors, actions = [], [], []
+        frames, vectors, actions, clearance = [], [], [], []
         for _ in range(max(1, n_steps // self.env.num_envs)):
             teacher = np.stack([np.asarray(info["teacher_action"], np.float32) for info in self.labels])
+            seen = np.stack([np.asarray(info.get("teacher_clearance", ()), np.float32) for info in self.labels])
             stuck = np.array([bool(info.get("teacher_stuck", False)) for info in self.labels])
             with torch.no_grad():
                 image = torch.from_numpy(self.obs["image"])
@@ -226,6 +243,7 @@ class Collector:
             frames.append(pre.numpy().astype(np.uint8)[keep])
             vectors.append(self.obs["vector"][keep].astype(np.float32))
             actions.append(teacher[keep])
+            clearance.append(seen.reshape(len(seen), -1)[keep])
             stats.dropped_stuck += int((~keep).sum())
             act = np.where(self.teacher_drives[:, None], teacher, student).astype(np.float32)
             self.obs, _, dones, infos = self.env.step(act)
@@ -239,32 +257,47 @@ class Collector:
                 else:
                     self.labels[i] = info
             self._check_labels()
-        batch = Batch(np.concatenate(frames), np.concatenate(vectors), np.concatenate(actions))
+        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance)))
         stats.labels, stats.wall_s = len(batch.actions), time.perf_counter() - t0
         return batch, stats
 
 
 # ------------------------------------------------------------------ learning
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
-        batch_size: int, shift_pad: int, rng: np.random.Generator) -> dict[str, float]:
+        batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0
+        ) -> dict[str, float]:
     """`updates` AdamW steps of MSE to the teacher's labels on random-shifted batches drawn
-    uniformly from `data` (a Dataset, sampled in place, or one Batch)."""
+    uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
+    head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`.
+    Returns the mean action loss (and clearance loss) of the last tenth of the updates."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
-    n, losses, t0 = data.rows(), [], time.perf_counter()
+    aux = student.clearance_head is not None and clearance_weight > 0
+    n, losses, aux_losses, t0 = data.rows(), [], [], time.perf_counter()
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
         x = random_shift(torch.from_numpy(batch.frames).float(), shift_pad, gen)
-        loss = F.mse_loss(student.act(x, torch.from_numpy(batch.vectors)), torch.from_numpy(batch.actions))
+        actions, clearance = student.act_and_clearance(x, torch.from_numpy(batch.vectors))
+        loss = F.mse_loss(actions, torch.from_numpy(batch.actions))
+        losses.append(loss.item())
+        if aux:
+            if batch.clearance.shape[1] != clearance.shape[1]:
+                raise DistillError(f"clearance_mismatch: the student predicts {clearance.shape[1]} clearance rays, "
+                                   f"the data holds {batch.clearance.shape[1]}")
+            aux_loss = F.mse_loss(clearance, torch.from_numpy(batch.clearance))
+            aux_losses.append(aux_loss.item())
+            loss = loss + clearance_weight * aux_loss
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
-        losses.append(loss.item())
     student.eval()
-    wall = time.perf_counter() - t0
-    return {"loss": float(np.mean(losses[-max(1, updates // 10):])), "fit_s": wall,
-            "samples_per_s": updates * batch_size / max(wall, 1e-9)}
+    wall, tail = time.perf_counter() - t0, max(1, updates // 10)
+    out = {"loss": float(np.mean(losses[-tail:])), "fit_s": wall,
+           "samples_per_s": updates * batch_size / max(wall, 1e-9)}
+    if aux:
+        out["clearance_loss"] = float(np.mean(aux_losses[-tail:]))
+    return out
 
 
 def _one_part(batch: Batch) -> Dataset:
@@ -346,7 +379,8 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
-            fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng)
+            fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng,
+                         d.clearance_weight)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),

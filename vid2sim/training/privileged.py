@@ -21,11 +21,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from vid2sim.bullet import import_pybullet
 from vid2sim.envs.nav_env import NavEnv
-from vid2sim.formats.walkable import WalkableGrid
-
-pb = import_pybullet()
+from vid2sim.envs.sensing import mesh_ranges, ray_angles, walkable_ranges, world_grid
 
 PRIVILEGED_ID = "vid2sim/PointNavPrivileged-v0"
 
@@ -37,8 +34,7 @@ class PrivilegedNavEnv(NavEnv):
         if max_steps:  # a shorter training horizon (truncation, bootstrapped); evaluation keeps 3000
             self.config = replace(self.config, reward=replace(self.config.reward, max_steps=max_steps))
         self.n_rays, self.max_range, self.ray_height = n_rays, max_range, ray_height
-        self.angles = np.radians(np.linspace(-fov_deg / 2, fov_deg / 2, n_rays))
-        self.march = np.arange(0.1, max_range + 1e-9, 0.1)
+        self.angles = ray_angles(n_rays, fov_deg)
         self.observation_space = spaces.Box(-1.0, 1e3, (2 + 2 * n_rays,), np.float32)
 
     def _frame(self) -> np.ndarray:
@@ -51,29 +47,11 @@ class PrivilegedNavEnv(NavEnv):
             return None
         return NavEnv._frame(self).transpose(1, 2, 0)
 
-    def _walkable(self) -> WalkableGrid:
-        w = self.world.assets.walkable
-        if getattr(self, "_grid_for", None) is not self.world:
-            self._grid = WalkableGrid(np.asarray(w.grid), np.asarray(w.origin, np.float64), float(w.resolution))
-            self._grid_for = self.world
-        return self._grid
-
     def ranges(self) -> tuple[np.ndarray, np.ndarray]:
-        """(mesh ranges, walkable ranges) in metres, one per ray."""
+        """(mesh ranges, walkable ranges) in metres, one per ray (`envs/sensing.py`)."""
         x, y, yaw = self.state.x, self.state.y, self.state.yaw
-        dirs = np.stack([np.cos(yaw + self.angles), np.sin(yaw + self.angles)], axis=1)
-        start = np.array([x, y, self.ray_height])
-        ends = start + np.concatenate([dirs * self.max_range, np.zeros((self.n_rays, 1))], axis=1)
-        phys = self.world.physics
-        hits = pb.rayTestBatch([start.tolist()] * self.n_rays, ends.tolist(), physicsClientId=phys.client)
-        mesh = np.array([h[2] * self.max_range if h[0] not in (-1, phys.robot_id) else self.max_range
-                         for h in hits])
-        pts = np.array([x, y]) + dirs[:, None, :] * self.march[None, :, None]  # [N, S, 2]
-        ok = self._walkable().lookup(pts[..., 0], pts[..., 1])
-        first_bad = np.where(ok.all(axis=1), len(self.march), np.argmin(ok, axis=1))
-        walk = np.where(first_bad < len(self.march), self.march[np.minimum(first_bad, len(self.march) - 1)],
-                        self.max_range)
-        return mesh, walk
+        mesh = mesh_ranges(self.world.physics, x, y, yaw, self.angles, self.max_range, self.ray_height)
+        return mesh, walkable_ranges(world_grid(self.world), x, y, yaw, self.angles, self.max_range)
 
     def _obs(self) -> np.ndarray:  # type: ignore[override]
         dist_heading = self._goal_vector()

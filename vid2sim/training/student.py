@@ -13,7 +13,9 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
 - one small conv encoder shared by the frames (weights shared, features concatenated), about
   3 MFLOP per frame at 36 x 64, so the learner fits ~3,000 samples per second on 2 threads;
 - the whole goal-vector history (12 numbers, scaled as `NavCNN`) through a small MLP;
-- an MLP head with `tanh`.
+- an MLP head with `tanh`;
+- optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
+  clearance readings in [0, 1], trained as an auxiliary target and left out of the export.
 `preprocess` (select + pool) and `act` (the network) are separate so the learner stores the
 small preprocessed frames and augments them (random shifts) before `act`; `forward` is
 `act(preprocess(...))`, the graph that is exported.
@@ -45,6 +47,7 @@ class StudentConfig:
     frame_dim: int = 128  # features per frame
     vector_dim: int = 64  # features of the goal-vector history
     hidden: int = 256  # head width
+    clearance_rays: int = 0  # auxiliary head: the teacher's clearance over the view, K rays (0: none)
 
     def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
         if (self.frames - 1) * self.frame_stride + 1 > STACK:
@@ -91,6 +94,8 @@ class StudentPolicy(nn.Module):
         self.vector_head = nn.Sequential(nn.Linear(n_vec, config.vector_dim), nn.ReLU())
         self.head = nn.Sequential(nn.Linear(config.frames * config.frame_dim + config.vector_dim, config.hidden),
                                   nn.ReLU(), nn.Linear(config.hidden, 2))
+        # trained only (not in the exported graph): the latest frame's features -> clearance [K]
+        self.clearance_head = nn.Linear(config.frame_dim, config.clearance_rays) if config.clearance_rays else None
 
     @property
     def input_shape(self) -> tuple[int, int, int, int]:
@@ -110,11 +115,18 @@ class StudentPolicy(nn.Module):
 
     def act(self, frames: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> actions [B, 2]."""
+        return self.act_and_clearance(frames, vector)[0]
+
+    def act_and_clearance(self, frames: torch.Tensor, vector: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """`act`, plus the auxiliary clearance prediction [B, K] in [0, 1] ([B, 0] without the head)."""
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
-        per_frame = self.frame_head(self.encoder(x)).reshape(b, -1)  # [B, frames * frame_dim]
+        per_frame = self.frame_head(self.encoder(x)).reshape(b, k, -1)  # [B, frames, frame_dim]
         vec = self.vector_head(vector.float().flatten(1) * self.vector_scale)
-        return torch.tanh(self.head(torch.cat([per_frame, vec], dim=1)))
+        actions = torch.tanh(self.head(torch.cat([per_frame.flatten(1), vec], dim=1)))
+        if self.clearance_head is None:
+            return actions, actions.new_zeros(b, 0)
+        return actions, torch.sigmoid(self.clearance_head(per_frame[:, -1]))
 
     def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         return self.act(self.preprocess(image), vector)

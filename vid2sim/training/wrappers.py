@@ -21,6 +21,11 @@ expert's own history, not on what the camera sees, and the learner drops them. W
 is more than `replan_distance` m from the expert's path (the student drove elsewhere, e.g. round
 the other side of an obstacle), the path is re-planned from the robot's position, so the label is
 the way to the goal from where the robot is, not back to a path it left.
+With `clearance_rays` = K > 0 it also adds `info["teacher_clearance"]` float32 [K]: what the camera
+looks at, as privileged ranges (`envs/sensing.py`): K rays from the robot centre at
+`CLEARANCE_HEIGHT` over the camera's horizontal field of view (left to right as seen), each the
+nearer of the collision-mesh / obstacle hit and the walkable map's edge, divided by
+`CLEARANCE_RANGE` m (saturating at 1). The pixel student may learn to predict it (an auxiliary target).
 """
 
 from __future__ import annotations
@@ -32,8 +37,11 @@ import gymnasium as gym
 import numpy as np
 
 from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.sensing import camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
 
 STUCK = "stuck"
+CLEARANCE_RANGE = 5.0  # m: the teacher's clearance readings saturate here
+CLEARANCE_HEIGHT = 0.3  # m above the ground, as the privileged agent's rays
 
 
 class StuckTermination(gym.Wrapper):
@@ -71,14 +79,29 @@ class TeacherError(RuntimeError):
 class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
-    def __init__(self, env: gym.Env, replan_distance: float = 0.3) -> None:
+    def __init__(self, env: gym.Env, replan_distance: float = 0.3, clearance_rays: int = 0) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
             raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
                                "path (the scripted teacher acts only in vid2sim navigation envs)")
+        if clearance_rays < 0:
+            raise ValueError(f"clearance_rays must be >= 0, got {clearance_rays}")
         self.expert = PurePursuitExpert()
         self.replan_distance = replan_distance
         self.replans = 0
+        self.clearance_angles = None
+        if clearance_rays:
+            cam = env.unwrapped.config.camera
+            # image columns run left to right, angles right to left (yaw is counter-clockwise)
+            self.clearance_angles = ray_angles(clearance_rays, camera_hfov_deg(cam.width, cam.focal))[::-1].copy()
+
+    def clearance(self) -> np.ndarray:
+        """Privileged clearance over the camera's view [K] in [0, 1] (see the module docs)."""
+        base = self.env.unwrapped
+        x, y, yaw = base.state.x, base.state.y, base.state.yaw
+        mesh = mesh_ranges(base.world.physics, x, y, yaw, self.clearance_angles, CLEARANCE_RANGE, CLEARANCE_HEIGHT)
+        walk = walkable_ranges(world_grid(base.world), x, y, yaw, self.clearance_angles, CLEARANCE_RANGE)
+        return (np.minimum(mesh, walk) / CLEARANCE_RANGE).astype(np.float32)
 
     def _off_path(self) -> bool:
         x, y, _ = self.env.unwrapped.robot_pose()
@@ -92,7 +115,10 @@ class TeacherLabels(gym.Wrapper):
                 self.expert.path, self.expert.index = np.asarray(path, np.float64), 0
                 self.replans += 1
         action = self.expert.act(self.env)
-        return {**info, "teacher_action": action, "teacher_stuck": self.expert.stuck > 0}
+        label = {**info, "teacher_action": action, "teacher_stuck": self.expert.stuck > 0}
+        if self.clearance_angles is not None:
+            label["teacher_clearance"] = self.clearance()
+        return label
 
     def reset(self, **kwargs: Any):
         obs, info = self.env.reset(**kwargs)
