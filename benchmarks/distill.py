@@ -51,7 +51,8 @@ def registry(args) -> str:
 
 
 def distill_config(args) -> DistillConfig:
-    student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, clearance_rays=args.clearance_rays)
+    student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
+                            clearance_rays=args.clearance_rays)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
@@ -152,6 +153,7 @@ def main() -> None:
     ap.add_argument("--updates-per-round", type=int, default=DistillConfig.updates_per_round)
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
+    ap.add_argument("--pool", type=int, default=StudentConfig.pool, help="student: pooling of the 72 x 128 frames")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
     ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,
