@@ -56,7 +56,7 @@ def distill_config(args) -> DistillConfig:
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
-                   clearance_weight=args.clearance_weight, student=student)
+                   clearance_weight=args.clearance_weight, steer_weight=args.steer_weight, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -165,6 +165,8 @@ def main() -> None:
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,
                     help="auxiliary target: the teacher's clearance over the view, this many rays (0: off)")
+    ap.add_argument("--steer-weight", type=float, default=DistillConfig.steer_weight,
+                    help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
                     help="weight of the auxiliary clearance loss")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")

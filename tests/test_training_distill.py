@@ -14,7 +14,7 @@ import torch
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, env_specs, fit,
+from vid2sim.training.distill import (STUDENT_NAME, Batch, Dataset, DistillError, action_loss, env_specs, fit,
                                       make_optimizer, scene_groups, train_distill)
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
@@ -291,3 +291,12 @@ def test_the_clearance_target_is_collected_learnt_and_left_out_of_the_export(str
         trained = load_student(tmp_path / "run" / STUDENT_NAME)
         expected = trained(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
     np.testing.assert_allclose(NavPolicy(out, "onnx").act_stacked(image, vector), expected, atol=1e-5)
+
+
+def test_steer_weight_counts_hard_turns_more():
+    labels = torch.tensor([[0.5, 0.0], [0.5, -1.0]])
+    predicted = torch.tensor([[0.5, 0.2], [0.5, -0.6]])  # squared errors per sample: 0.02, 0.08
+    assert action_loss(predicted, labels).item() == pytest.approx(0.05)
+    assert action_loss(predicted, labels, steer_weight=3.0).item() == pytest.approx((0.02 + 4 * 0.08) / 5)
+    with pytest.raises(ValueError, match="steer_weight"):
+        DistillConfig(steer_weight=-1.0)

@@ -16,7 +16,7 @@ does, in order:
      (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
-     labels, on batches with random-shift augmentation (DrQ), warm-started from the last round;
+     labels (optionally weighted towards hard turns, `steer_weight`), on batches with random-shift augmentation (DrQ), warm-started from the last round;
      a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
      teacher's privileged clearance over the view (K ray ranges, `TeacherLabels`), an auxiliary
      target that asks the encoder to see how far away what it faces is (`clearance_weight`);
@@ -263,13 +263,25 @@ class Collector:
 
 
 # ------------------------------------------------------------------ learning
+def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: float = 0.0) -> torch.Tensor:
+    """MSE of actions [B, 2] to the teacher's labels [B, 2]; with steer_weight w > 0 each sample
+    counts 1 + w |label steering|, normalised by the weights' sum, so the hard turns that avoid a
+    contact are not averaged away by the many straight-ahead states."""
+    per_sample = (predicted - labels).square().mean(dim=1)  # [B]
+    if steer_weight <= 0:
+        return per_sample.mean()
+    weights = 1.0 + steer_weight * labels[:, 1].abs()  # [B]
+    return (weights * per_sample).sum() / weights.sum()
+
+
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
-        batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0
-        ) -> dict[str, float]:
+        batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0,
+        steer_weight: float = 0.0) -> dict[str, float]:
     """`updates` AdamW steps of MSE to the teacher's labels on random-shifted batches drawn
     uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
     head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`.
-    Returns the mean action loss (and clearance loss) of the last tenth of the updates."""
+    `steer_weight`: see `action_loss`. Returns the mean action loss (and clearance loss) of the
+    last tenth of the updates."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
     aux = student.clearance_head is not None and clearance_weight > 0
@@ -279,7 +291,7 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
         batch = data.gather(rng.integers(0, n, batch_size))
         x = random_shift(torch.from_numpy(batch.frames).float(), shift_pad, gen)
         actions, clearance = student.act_and_clearance(x, torch.from_numpy(batch.vectors))
-        loss = F.mse_loss(actions, torch.from_numpy(batch.actions))
+        loss = action_loss(actions, torch.from_numpy(batch.actions), steer_weight)
         losses.append(loss.item())
         if aux:
             if batch.clearance.shape[1] != clearance.shape[1]:
@@ -380,7 +392,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             dataset.add(batch)
             done += stats.steps
             fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng,
-                         d.clearance_weight)
+                         d.clearance_weight, d.steer_weight)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
