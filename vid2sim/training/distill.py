@@ -16,7 +16,8 @@ does, in order:
      (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
-     labels (optionally weighted towards hard turns, `steer_weight`), on batches with random-shift augmentation (DrQ), warm-started from the last round;
+     labels (optionally weighted towards hard turns, `steer_weight`), on batches with random-shift
+     augmentation (DrQ), warm-started from the last round;
      a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
      teacher's privileged clearance over the view (K ray ranges, `TeacherLabels`), an auxiliary
      target that asks the encoder to see how far away what it faces is (`clearance_weight`);
