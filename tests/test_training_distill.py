@@ -243,8 +243,11 @@ def test_the_teachers_route_keeps_its_comfort_distance_unless_the_env_arguments_
     assert env_specs(config)[0].kwargs["episode"] == {"expert_comfort": 0.5, "clearance": 0.5}
     config.env_kwargs.pop("episode")
     recorded = config.to_dict()
-    recorded["distill"].pop("teacher_comfort")  # a run folder written before the field existed
-    assert TrainConfig.from_dict(recorded).distill.teacher_comfort == 0.0  # resumes with its own teacher
+    recorded["distill"].pop("teacher_comfort")  # a run folder written before the fields existed
+    recorded["distill"].pop("weight_decay")
+    old = TrainConfig.from_dict(recorded).distill
+    assert old.teacher_comfort == 0.0 and old.weight_decay == 0.0  # resumes with its own teacher and Adam
+    assert config.distill.weight_decay == 0.5
     assert TrainConfig.from_dict(config.to_dict()).distill.teacher_comfort == 0.8
     config.distill.teacher_comfort = 0.0  # the shortest route: the env's default, nothing passed
     assert "episode" not in env_specs(config)[0].kwargs
