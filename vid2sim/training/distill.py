@@ -244,7 +244,7 @@ class Collector:
             frames.append(pre.numpy().astype(np.uint8)[keep])
             vectors.append(self.obs["vector"][keep].astype(np.float32))
             actions.append(teacher[keep])
-            clearance.append(seen.reshape(len(seen), -1)[keep])
+            clearance.append(seen[keep])  # [n, K]; [n, 0] without the target
             stats.dropped_stuck += int((~keep).sum())
             act = np.where(self.teacher_drives[:, None], teacher, student).astype(np.float32)
             self.obs, _, dones, infos = self.env.step(act)
