@@ -1,6 +1,7 @@
 """Pixel agents distilled from the A* teacher: held-out success over seeds, SocialNav, the scene-count study.
 
     python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav] [--train-eval 8]
+    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 3 4 5 6 7 8 --ensemble 3   # 3 ensembles of 3
     python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
     python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 small rounds (smoke run)
 
@@ -14,6 +15,8 @@ street (seeds 1000 + k), 0-5 static obstacles, exact render fidelity, no jitter 
 a 600-step limit (`--eval-max-steps`, 0: the env's 3000; a robot pressed against geometry it
 cannot leave would otherwise cost 3000 steps per failure); SR, SPL and Cost with 95 % bootstrap
 intervals; `--socialnav` also evaluates the same students with 1-4 pedestrians (SR, SNS).
+`--ensemble K` also evaluates the students of every K consecutive seeds driving together
+(`training/ensemble.py`, the mean of their actions), whose training budget is the K runs' sum.
 Every figure states its budget (env steps, wall and CPU seconds).
 """
 
@@ -35,6 +38,7 @@ from street_registry import build  # noqa: E402
 
 from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
 from vid2sim.training.distill import train_distill  # noqa: E402
+from vid2sim.training.ensemble import build_ensemble  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
 from vid2sim.training.student import StudentConfig  # noqa: E402
@@ -94,27 +98,58 @@ def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[
 def run_heldout(args, run: Run) -> None:
     reg = registry(args)
     successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
+    trained: list[tuple[Path, dict]] = []
     for seed in args.seeds:
         run_dir, budget = train_one(args, reg, seed)
+        trained.append((run_dir, budget))
         run.record(f"pointnav seed {seed}", "train_wall_s", budget["train_wall_s"], "s", budget)
         run.record(f"pointnav seed {seed}", "train_cpu_s", budget["train_cpu_s"], "s", budget)
-        for task, obstacles in (("pointnav", "static"), ("socialnav", "dynamic")):
-            if task == "socialnav" and not args.socialnav:
-                continue
-            rep = evaluate(eval_config(args, reg, run_dir, obstacles))
-            (run_dir / f"eval_{task}.json").write_text(rep.to_json())
-            metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
-            record_eval(run, f"{task} seed {seed}", rep, budget, metrics)
-            successes[task] += [float(r["success"]) for r in rep.records]
+        if not args.no_member_eval:
+            evaluate_policy(args, run, reg, run_dir, f"seed {seed}", budget, successes)
         if args.train_eval:
             eval_training_streets(args, run, reg, run_dir, budget)
+    report_pooled(run, successes, "all seeds", {"seeds": list(args.seeds), "env_steps": args.steps})
+    if args.ensemble:
+        run_ensembles(args, run, reg, trained)
+
+
+def evaluate_policy(args, run: Run, reg: str, policy_dir: Path, name: str, budget: dict,
+                    successes: dict[str, list[float]]) -> None:
+    """The held-out protocol (PointNav, and SocialNav with --socialnav) for one student or ensemble."""
+    for task, obstacles in (("pointnav", "static"), ("socialnav", "dynamic")):
+        if task == "socialnav" and not args.socialnav:
+            continue
+        rep = evaluate(eval_config(args, reg, policy_dir, obstacles))
+        (policy_dir / f"eval_{task}.json").write_text(rep.to_json())
+        metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
+        record_eval(run, f"{task} {name}", rep, budget, metrics)
+        successes[task] += [float(r["success"]) for r in rep.records]
+
+
+def report_pooled(run: Run, successes: dict[str, list[float]], name: str, extra: dict) -> None:
     for task, values in successes.items():
         if values:
             ci = bootstrap_ci(np.array(values))
-            run.record(f"{task} all seeds", "sr", ci.mean, "", {"ci95": [ci.low, ci.high], "episodes": len(values),
-                                                                "seeds": list(args.seeds), "env_steps": args.steps})
-            print(json.dumps({"case": f"{task} all seeds", "sr": [round(ci.mean, 3), round(ci.low, 3),
-                                                                  round(ci.high, 3)], "episodes": len(values)}))
+            run.record(f"{task} {name}", "sr", ci.mean, "", {"ci95": [ci.low, ci.high], "episodes": len(values),
+                                                             **extra})
+            print(json.dumps({"case": f"{task} {name}", "sr": [round(ci.mean, 3), round(ci.low, 3),
+                                                               round(ci.high, 3)], "episodes": len(values)}))
+
+
+def run_ensembles(args, run: Run, reg: str, trained: list[tuple[Path, dict]]) -> None:
+    """Every `--ensemble` consecutive students driving together; budget: the sum of their trainings."""
+    successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
+    k = args.ensemble
+    for i in range(0, len(trained) - k + 1, k):
+        group = trained[i:i + k]
+        seeds = [b["seed"] for _, b in group]
+        folder = build_ensemble([d for d, _ in group], args.root / f"ensemble_{args.steps}_s{'-'.join(map(str, seeds))}"
+                                                                    f"{args.tag}")
+        budget = {"env_steps": sum(b["env_steps"] for _, b in group), "seeds": seeds,
+                  "train_wall_s": sum(b["train_wall_s"] for _, b in group),
+                  "train_cpu_s": sum(b["train_cpu_s"] for _, b in group)}
+        evaluate_policy(args, run, reg, folder, f"ensemble of seeds {seeds}", budget, successes)
+    report_pooled(run, successes, f"all ensembles of {k}", {"seeds": list(args.seeds), "env_steps": args.steps})
 
 
 def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict) -> None:
@@ -175,15 +210,22 @@ def main() -> None:
     ap.add_argument("--socialnav", action="store_true", help="heldout: also evaluate with pedestrians")
     ap.add_argument("--train-eval", type=int, default=0,
                     help="heldout: also evaluate on this many of the run's training streets (same protocol)")
+    ap.add_argument("--ensemble", type=int, default=0,
+                    help="heldout: also evaluate the students of every K consecutive seeds as one ensemble")
+    ap.add_argument("--no-member-eval", action="store_true",
+                    help="heldout: evaluate only the ensembles, not each student")
     ap.add_argument("--counts", default="1,5,15,25,30", help="study: training-scene counts")
     ap.add_argument("--num-cpus", type=int, default=2, help="study: local Ray runtime CPUs (one training each)")
-    ap.add_argument("--quick", action="store_true", help="6 streets, one seed, 2 rounds of 1000 steps, 5 trials")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 streets, one seed (two with --ensemble), 2 rounds of 200 steps, 2 trials")
     ap.add_argument("--tag", default="")
     add_run_args(ap)
     args = ap.parse_args()
     if args.quick:
-        args.streets, args.seeds, args.steps, args.steps_per_round = 6, [0], 400, 200
+        args.streets, args.seeds, args.steps, args.steps_per_round = 6, args.seeds[:2 if args.ensemble else 1], 400, 200
         args.updates_per_round, args.trials, args.envs, args.eval_max_steps = 20, 2, 2, 100
+    if args.ensemble and not 2 <= args.ensemble <= len(args.seeds):
+        ap.error(f"--ensemble {args.ensemble}: an ensemble needs 2 to {len(args.seeds)} students (the --seeds)")
     with Run("distill", args) as run:
         {"heldout": run_heldout, "study": run_study_bench}[args.what](args, run)
 

@@ -38,6 +38,8 @@ def _register_subapps() -> None:
     from vid2sim.cli.train import study_command, train_command
     app.command("train")(train_command)
     app.command("study")(study_command)
+    from vid2sim.cli.ensemble import ensemble_command
+    app.command("ensemble")(ensemble_command)
     from vid2sim.cli.envs import app as envs_app
     app.add_typer(envs_app, name="envs")
     from vid2sim.cli.view import view_command

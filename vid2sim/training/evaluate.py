@@ -37,7 +37,7 @@ from vid2sim.ranges import checked
 from vid2sim.registry import Registry
 from vid2sim.training.actions import to_env
 from vid2sim.training.distill import STUDENT_NAME
-from vid2sim.training.student import StudentPolicy
+from vid2sim.training.ensemble import load_student
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
 METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
@@ -99,12 +99,6 @@ def policy_path(policy: str) -> Path:
 
 class ObservationMismatch(ValueError):
     """A policy whose observation does not match the evaluation env's."""
-
-
-def load_student(path: Path) -> StudentPolicy:
-    """The distilled student of a run (RUN/student.pt, or the `student` of a checkpoints/last.pt)."""
-    ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    return StudentPolicy.from_checkpoint(ckpt["student"] if "student" in ckpt else ckpt)
 
 
 def check_observation(env: gym.Env, shapes: dict[str, tuple], policy: str) -> None:

@@ -27,6 +27,7 @@ from stable_baselines3 import SAC
 from torch import nn
 
 from vid2sim.training.actions import affine, check_map
+from vid2sim.training.ensemble import StudentEnsemble
 from vid2sim.training.student import StudentPolicy
 from vid2sim.versioning import code_version
 
@@ -69,24 +70,33 @@ class PolicyMeta:
     source: str
     action_map: str = "clamp"  # baked into the graph already; recorded for the reader
     method: str = "sac"  # "sac" (actor of a SAC model) or "distill" (pixel student)
-    architecture: Optional[dict] = None  # the student's encoder and input choice (StudentConfig), for distill
+    # the student's encoder and input choice (StudentConfig), for distill; {"ensemble": [StudentConfig...]}
+    # for an ensemble of students (training/ensemble.py)
+    architecture: Optional[dict] = None
 
 
-def load_model(model: SAC | StudentPolicy | str | Path) -> SAC | StudentPolicy:
-    """A SAC model or a distilled student, from memory, a SAC .zip, a student .pt or a run folder."""
-    if isinstance(model, (SAC, StudentPolicy)):
+Model = SAC | StudentPolicy | StudentEnsemble
+MODEL_TYPES = (SAC, StudentPolicy, StudentEnsemble)
+
+
+def load_model(model: Model | str | Path) -> Model:
+    """A SAC model, a distilled student or an ensemble of students, from memory, a SAC .zip, a student
+    .pt or a run (or ensemble) folder."""
+    if isinstance(model, MODEL_TYPES):
         return model
-    from vid2sim.training.evaluate import load_student, policy_path  # evaluate imports this module's neighbours
+    from vid2sim.training.ensemble import load_student
+    from vid2sim.training.evaluate import policy_path  # evaluate imports this module's neighbours
 
     path = policy_path(str(model))
     return load_student(path) if path.suffix == ".pt" else SAC.load(path, device="cpu")
 
 
-def graph_and_meta(model: SAC | StudentPolicy, source: str) -> tuple[nn.Module, PolicyMeta]:
+def graph_and_meta(model: Model, source: str) -> tuple[nn.Module, PolicyMeta]:
     """The module to export and its metadata."""
-    if isinstance(model, StudentPolicy):
+    if isinstance(model, (StudentPolicy, StudentEnsemble)):
+        architecture = model.architecture() if isinstance(model, StudentEnsemble) else model.config.to_dict()
         meta = PolicyMeta(list(model.image_shape), list(model.vector_shape), ["speed", "steering"], code_version(),
-                          source, "clamp", "distill", model.config.to_dict())
+                          source, "clamp", "distill", architecture)
         return model.eval(), meta
     spaces = model.observation_space.spaces
     meta = PolicyMeta(list(spaces["image"].shape), list(spaces["vector"].shape), ["speed", "steering"],
@@ -94,9 +104,9 @@ def graph_and_meta(model: SAC | StudentPolicy, source: str) -> tuple[nn.Module, 
     return DeterministicActor(model).eval(), meta
 
 
-def export_policy(model: SAC | StudentPolicy | str | Path, out_dir: str | Path) -> Path:
+def export_policy(model: Model | str | Path, out_dir: str | Path) -> Path:
     """Write policy.onnx, policy.pt2 and policy.json into `out_dir`; returns `out_dir`."""
-    source = "in-memory" if isinstance(model, (SAC, StudentPolicy)) else str(model)
+    source = "in-memory" if isinstance(model, MODEL_TYPES) else str(model)
     actor, meta = graph_and_meta(load_model(model), source)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
