@@ -120,3 +120,24 @@ def test_distill_study_end_to_end_on_ray(street_registry, tmp_path):
     assert all((Path(r.run_dir) / "student.pt").is_file() and len(r.success) == 1 for r in rows)
     study = json.loads((tmp_path / "study.json").read_text())
     assert study["config"]["method"] == "distill" and "sr_ci_low" in study["aggregate"]["1"]
+
+
+def test_a_study_run_again_reuses_finished_runs_and_redoes_changed_ones(street_registry, tmp_path):
+    from vid2sim.training.config import DistillConfig
+    from vid2sim.training.student import StudentConfig
+    from vid2sim.training.study import ROW_NAME, run_one
+
+    distill = DistillConfig(steps_per_round=20, updates_per_round=2, batch_size=8, train_max_steps=20,
+                            student=StudentConfig(channels=(4, 4, 8, 8), frame_dim=8, vector_dim=8, hidden=16))
+    config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1], seeds=1, total_steps=20,
+                         n_envs=1, trials=1, method="distill", env_kwargs={"training": True, "fidelity": "exact"},
+                         distill=distill, eval_max_steps=5)
+    first = run_one(config, 1, 0, ["synthetic-street-s1"])
+    student = tmp_path / "n1_s0" / "student.pt"
+    trained_at = student.stat().st_mtime_ns
+    again = run_one(config, 1, 0, ["synthetic-street-s1"])
+    assert again == first and student.stat().st_mtime_ns == trained_at  # reused, not retrained
+    changed = run_one(replace(config, trials=2), 1, 0, ["synthetic-street-s1"])
+    assert len(changed.success) == 2 * len(first.success) and student.stat().st_mtime_ns > trained_at
+    recorded = json.loads((tmp_path / "n1_s0" / ROW_NAME).read_text())
+    assert recorded["settings"]["eval"]["trials"] == 2

@@ -8,6 +8,10 @@ than the train pool is refused (`StudyError`, named) before any run starts; `Stu
 fields are checked when it is built (`RangeError`, `vid2sim.ranges`). Scene checkouts and their sim-ready sets are
 shared by all runs (OUT/checkouts). Output: `study.json`, a table, and `study.png` (SR and SPL
 against N: mean over seeds, the seeds' spread, and the pooled 95 % bootstrap interval).
+
+A finished (N, s) run leaves OUT/nN_sS/study_row.json with its training and evaluation settings;
+a study run again over the same folder reuses every run whose settings are unchanged and trains
+only the others, so an interrupted study goes on where it stopped.
 """
 
 from __future__ import annotations
@@ -83,8 +87,12 @@ def check_counts(counts: list[int], available: int) -> list[int]:
     return sorted(set(counts))
 
 
+ROW_NAME = "study_row.json"  # a finished run's row and the settings that made it
+
+
 def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) -> StudyRow:
-    """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes."""
+    """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes (or reuse the
+    run's recorded row when its settings are unchanged)."""
     run_dir = Path(config.out_dir) / f"n{count}_s{seed}"
     checkouts = str(Path(config.out_dir) / "checkouts")
     tc = TrainConfig(run_dir=str(run_dir), total_steps=config.total_steps, registry=config.registry,
@@ -94,16 +102,33 @@ def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) ->
                      env_kwargs={"checkout_root": checkouts, **config.env_kwargs},
                      checkpoint_every=max(config.total_steps, 1), sac=config.sac, method=config.method,
                      distill=config.distill, stuck_steps=config.stuck_steps)
+    ec = EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
+                    trials=config.trials, obstacles=config.obstacles,
+                    env_id=None if config.method == "distill" else config.env_id,
+                    max_steps=config.eval_max_steps, checkout_root=checkouts)
+    settings = json.loads(json.dumps({"train": asdict(tc), "eval": asdict(ec)}))  # as stored (tuples -> lists)
+    done = finished_row(run_dir, settings)
+    if done is not None:
+        return done
+    (run_dir / ROW_NAME).unlink(missing_ok=True)  # a run redone with other settings: its old row goes first
     result = train_distill(tc) if config.method == "distill" else train(tc, progress_bar=False)
-    report = evaluate(EvalConfig(registry=config.registry, policy=str(run_dir), split_seed=config.split_seed,
-                                 trials=config.trials, obstacles=config.obstacles,
-                                 env_id=None if config.method == "distill" else config.env_id,
-                                 max_steps=config.eval_max_steps, checkout_root=checkouts))
+    report = evaluate(ec)
     (run_dir / "eval.json").write_text(report.to_json())
     m = report.metrics
     success = [float(r["success"]) for r in report.records]
-    return StudyRow(count, seed, str(run_dir), list(scene_ids), m["sr"].mean, m["spl"].mean, m["cost"].mean,
-                    result.num_timesteps, result.wall_s, success)
+    row = StudyRow(count, seed, str(run_dir), list(scene_ids), m["sr"].mean, m["spl"].mean, m["cost"].mean,
+                   result.num_timesteps, result.wall_s, success)
+    (run_dir / ROW_NAME).write_text(json.dumps({"settings": settings, "row": asdict(row)}, indent=2))
+    return row
+
+
+def finished_row(run_dir: Path, settings: dict) -> Optional[StudyRow]:
+    """The row a finished run recorded with exactly these settings, else None (the run is redone)."""
+    path = run_dir / ROW_NAME
+    if not path.is_file():
+        return None
+    recorded = json.loads(path.read_text())
+    return StudyRow(**recorded["row"]) if recorded.get("settings") == settings else None
 
 
 _run_remote = ray.remote(run_one)
