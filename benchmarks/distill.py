@@ -56,7 +56,7 @@ def registry(args) -> str:
 
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
-                            clearance_rays=args.clearance_rays)
+                            clearance_rays=args.clearance_rays, steer_bins=args.steer_bins)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
@@ -200,6 +200,8 @@ def main() -> None:
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,
                     help="auxiliary target: the teacher's clearance over the view, this many rays (0: off)")
+    ap.add_argument("--steer-bins", type=int, default=StudentConfig.steer_bins,
+                    help="student: steering as a distribution over K values (0: regressed)")
     ap.add_argument("--steer-weight", type=float, default=DistillConfig.steer_weight,
                     help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,

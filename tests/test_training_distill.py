@@ -303,3 +303,49 @@ def test_steer_weight_counts_hard_turns_more():
     assert action_loss(predicted, labels, steer_weight=3.0).item() == pytest.approx((0.02 + 4 * 0.08) / 5)
     with pytest.raises(ValueError, match="steer_weight"):
         DistillConfig(steer_weight=-1.0)
+
+
+def test_two_hot_targets_keep_the_label_and_the_decoder_keeps_one_mode():
+    from vid2sim.training.student import steer_from_logits, two_hot
+
+    labels = torch.tensor([-1.0, -0.37, 0.0, 0.55, 1.0])
+    target = two_hot(labels, 11)
+    values = torch.linspace(-1, 1, 11)
+    torch.testing.assert_close(target.sum(1), torch.ones(5))
+    torch.testing.assert_close((target * values).sum(1), labels)
+    assert ((target > 0).sum(1) <= 2).all()
+    bimodal = torch.full((1, 11), -10.0)
+    bimodal[0, 0], bimodal[0, 10] = 2.0, 1.5  # hard left more likely than hard right: not their average
+    assert steer_from_logits(bimodal, values).item() == pytest.approx(-1.0, abs=1e-3)
+    peaked = torch.log(two_hot(torch.tensor([0.33]), 11) + 1e-9)
+    assert steer_from_logits(peaked, values).item() == pytest.approx(0.33, abs=1e-3)
+
+
+def test_steering_bins_learn_a_turn_that_regression_averages_away(tmp_path):
+    """The same observation labelled hard right 60 % and hard left 40 % of the time: a regressed
+    steering learns their mean (~0.2), the bins learn the more likely turn; the export keeps it."""
+    rng = np.random.default_rng(0)
+    n = 256
+    frames = np.repeat(rng.integers(0, 256, (1, 2, 3, 36, 64), dtype=np.uint8), n, axis=0)
+    steering = np.where(rng.random(n) < 0.6, 0.9, -0.9).astype(np.float32)
+    data = Batch(frames, np.zeros((n, 6, 2), np.float32), np.stack([np.full(n, 0.5, np.float32), steering], 1))
+    learnt = {}
+    for bins in (0, 21):
+        torch.manual_seed(0)
+        student = StudentPolicy(StudentConfig(**{**TINY.to_dict(), "steer_bins": bins}), (6, 3, 72, 128), (6, 2))
+        optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3, weight_decay=0.0))
+        fit(student, optimizer, data, 200, 64, 0, np.random.default_rng(1))
+        with torch.no_grad():
+            learnt[bins] = student.act(torch.from_numpy(frames[:1]).float(), torch.zeros(1, 6, 2))[0].numpy()
+    assert abs(learnt[0][1] - 0.18) < 0.15  # the average of the two turns
+    assert learnt[21][1] > 0.75 and abs(learnt[21][0] - 0.5) < 0.1  # the likelier turn, the speed regressed
+    student.save(tmp_path / STUDENT_NAME)
+    out = export_policy(tmp_path, tmp_path / "export")
+    image = rng.integers(0, 256, (3, 6, 3, 72, 128), dtype=np.uint8)
+    vector = rng.normal(size=(3, 6, 2)).astype(np.float32)
+    with torch.no_grad():
+        expected = load_student(tmp_path / STUDENT_NAME)(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
+    for backend in ("onnx", "torch"):
+        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image, vector), expected, atol=1e-5)
+    with pytest.raises(ValueError, match="steer_bins"):
+        StudentConfig(steer_bins=2)

@@ -48,7 +48,7 @@ from torch.utils.tensorboard import SummaryWriter
 from vid2sim.training.config import EVICTIONS, DistillConfig, TrainConfig
 from vid2sim.training.rollouts import EnvSpec
 from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
-from vid2sim.training.student import StudentPolicy, random_shift
+from vid2sim.training.student import StudentPolicy, random_shift, two_hot
 
 STUDENT_NAME = "student.pt"
 
@@ -264,11 +264,19 @@ class Collector:
 
 
 # ------------------------------------------------------------------ learning
-def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: float = 0.0) -> torch.Tensor:
-    """MSE of actions [B, 2] to the teacher's labels [B, 2]; with steer_weight w > 0 each sample
-    counts 1 + w |label steering|, normalised by the weights' sum, so the hard turns that avoid a
-    contact are not averaged away by the many straight-ahead states."""
-    per_sample = (predicted - labels).square().mean(dim=1)  # [B]
+def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: float = 0.0,
+                steer_logits: Optional[torch.Tensor] = None) -> torch.Tensor:
+    """MSE of actions [B, 2] to the teacher's labels [B, 2]; with steering bins (`steer_logits`
+    [B, K]) the steering term is instead the cross-entropy to the label's two-hot distribution
+    (`student.two_hot`). With steer_weight w > 0 each sample counts 1 + w |label steering|,
+    normalised by the weights' sum, so the hard turns that avoid a contact are not averaged away
+    by the many straight-ahead states."""
+    if steer_logits is None:
+        per_sample = (predicted - labels).square().mean(dim=1)  # [B]
+    else:
+        target = two_hot(labels[:, 1], steer_logits.shape[1])  # [B, K]
+        steer_ce = -(target * torch.log_softmax(steer_logits, dim=1)).sum(dim=1)  # [B]
+        per_sample = 0.5 * ((predicted[:, 0] - labels[:, 0]).square() + steer_ce)  # [B]
     if steer_weight <= 0:
         return per_sample.mean()
     weights = 1.0 + steer_weight * labels[:, 1].abs()  # [B]
@@ -278,11 +286,11 @@ def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: flo
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
         batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0,
         steer_weight: float = 0.0) -> dict[str, float]:
-    """`updates` AdamW steps of MSE to the teacher's labels on random-shifted batches drawn
+    """`updates` AdamW steps of `action_loss` to the teacher's labels on random-shifted batches drawn
     uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
     head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`.
-    `steer_weight`: see `action_loss`. Returns the mean action loss (and clearance loss) of the
-    last tenth of the updates."""
+    `steer_weight`: see `action_loss`. Returns the mean squared error of the actions to the labels
+    (whatever the steering head) and the clearance loss, over the last tenth of the updates."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
     aux = student.clearance_head is not None and clearance_weight > 0
@@ -291,9 +299,11 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
         x = random_shift(torch.from_numpy(batch.frames).float(), shift_pad, gen)
-        actions, clearance = student.act_and_clearance(x, torch.from_numpy(batch.vectors))
-        loss = action_loss(actions, torch.from_numpy(batch.actions), steer_weight)
-        losses.append(loss.item())
+        pred = student.outputs(x, torch.from_numpy(batch.vectors))
+        labels = torch.from_numpy(batch.actions)
+        loss = action_loss(pred.actions, labels, steer_weight, pred.steer_logits)
+        losses.append((pred.actions.detach() - labels).square().mean().item())  # comparable over heads
+        clearance = pred.clearance
         if aux:
             if batch.clearance.shape[1] != clearance.shape[1]:
                 raise DistillError(f"clearance_mismatch: the student predicts {clearance.shape[1]} clearance rays, "

@@ -13,7 +13,12 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
 - one small conv encoder shared by the frames (weights shared, features concatenated), about
   3 MFLOP per frame at 36 x 64, so the learner fits ~3,000 samples per second on 2 threads;
 - the whole goal-vector history (12 numbers, scaled as `NavCNN`) through a small MLP;
-- an MLP head with `tanh`;
+- an MLP head with `tanh`; optionally (`steer_bins` K > 0) the steering as a distribution over K
+  evenly spaced values in [-1, 1] instead of one regressed number, learnt by cross-entropy to the
+  label's two nearest bins: where the teacher turns hard left in some states and hard right in
+  others that look alike, a regressed steering averages them to straight ahead, the bins keep
+  both; the action is the probability-weighted steering of the most likely bin and its two
+  neighbours (`steer_from_logits`, in the exported graph too);
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
   clearance readings in [0, 1], trained as an auxiliary target and left out of the export.
 `preprocess` (select + pool) and `act` (the network) are separate so the learner stores the
@@ -24,6 +29,7 @@ small preprocessed frames and augments them (random shifts) before `act`; `forwa
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
+from typing import Optional
 
 import torch
 import torch.nn.functional as F
@@ -48,6 +54,7 @@ class StudentConfig:
     vector_dim: int = 64  # features of the goal-vector history
     hidden: int = 256  # head width
     clearance_rays: int = 0  # auxiliary head: the teacher's clearance over the view, K rays (0: none)
+    steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
 
     def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
         if (self.frames - 1) * self.frame_stride + 1 > STACK:
@@ -56,6 +63,8 @@ class StudentConfig:
         self.channels = tuple(int(c) for c in self.channels)
         if len(self.channels) != 4:
             raise ValueError(f"student channels must list 4 conv widths, got {list(self.channels)}")
+        if self.steer_bins in (1, 2):
+            raise ValueError(f"student steer_bins must be 0 (regressed steering) or >= 3, got {self.steer_bins}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -92,8 +101,11 @@ class StudentPolicy(nn.Module):
         n_vec = int(torch.tensor(self.vector_shape).prod())
         self.register_buffer("vector_scale", torch.tensor(VECTOR_SCALE, dtype=torch.float32).repeat(n_vec // 2))
         self.vector_head = nn.Sequential(nn.Linear(n_vec, config.vector_dim), nn.ReLU())
+        n_out = 1 + config.steer_bins if config.steer_bins else 2  # speed + steering bins, or speed + steering
         self.head = nn.Sequential(nn.Linear(config.frames * config.frame_dim + config.vector_dim, config.hidden),
-                                  nn.ReLU(), nn.Linear(config.hidden, 2))
+                                  nn.ReLU(), nn.Linear(config.hidden, n_out))
+        # [K] steering value of each bin (derived from the config, so not in the state dict)
+        self.register_buffer("steer_values", torch.linspace(-1.0, 1.0, max(config.steer_bins, 1)), persistent=False)
         # trained only (not in the exported graph): the latest frame's features -> clearance [K]
         self.clearance_head = nn.Linear(config.frame_dim, config.clearance_rays) if config.clearance_rays else None
 
@@ -115,18 +127,22 @@ class StudentPolicy(nn.Module):
 
     def act(self, frames: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> actions [B, 2]."""
-        return self.act_and_clearance(frames, vector)[0]
+        return self.outputs(frames, vector).actions
 
-    def act_and_clearance(self, frames: torch.Tensor, vector: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """`act`, plus the auxiliary clearance prediction [B, K] in [0, 1] ([B, 0] without the head)."""
+    def outputs(self, frames: torch.Tensor, vector: torch.Tensor) -> "StudentOutputs":
+        """`act`'s actions, the steering logits (with steer_bins) and the clearance prediction (with the
+        clearance head), what the learner's losses need."""
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
         per_frame = self.frame_head(self.encoder(x)).reshape(b, k, -1)  # [B, frames, frame_dim]
         vec = self.vector_head(vector.float().flatten(1) * self.vector_scale)
-        actions = torch.tanh(self.head(torch.cat([per_frame.flatten(1), vec], dim=1)))
-        if self.clearance_head is None:
-            return actions, actions.new_zeros(b, 0)
-        return actions, torch.sigmoid(self.clearance_head(per_frame[:, -1]))
+        out = self.head(torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, 2] or [B, 1 + K]
+        logits = out[:, 1:] if self.config.steer_bins else None
+        steering = steer_from_logits(logits, self.steer_values) if logits is not None else torch.tanh(out[:, 1])
+        actions = torch.stack([torch.tanh(out[:, 0]), steering], dim=1)  # [B, 2]
+        clearance = (torch.sigmoid(self.clearance_head(per_frame[:, -1])) if self.clearance_head is not None
+                     else actions.new_zeros(b, 0))  # [B, K] in [0, 1]
+        return StudentOutputs(actions, logits, clearance)
 
     def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         return self.act(self.preprocess(image), vector)
@@ -148,6 +164,35 @@ class StudentPolicy(nn.Module):
     @classmethod
     def load(cls, path) -> "StudentPolicy":
         return cls.from_checkpoint(torch.load(path, map_location="cpu", weights_only=False))
+
+
+@dataclass
+class StudentOutputs:
+    actions: torch.Tensor  # [B, 2] speed, steering in [-1, 1]
+    steer_logits: Optional[torch.Tensor]  # [B, K] with steer_bins, else None
+    clearance: torch.Tensor  # [B, clearance_rays] in [0, 1] ([B, 0] without the head)
+
+
+def steer_from_logits(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
+    """Logits [B, K] over steering `values` [K] -> steering [B]: the probability-weighted mean of the
+    most likely bin and its two neighbours (one mode, never the average of a left and a right turn)."""
+    probs = torch.softmax(logits, dim=1)  # [B, K]
+    index = torch.arange(logits.shape[1], device=logits.device)  # [K]
+    near = (index[None] - probs.argmax(dim=1, keepdim=True)).abs() <= 1  # [B, K]
+    weights = probs * near
+    return (weights * values).sum(dim=1) / weights.sum(dim=1)
+
+
+def two_hot(steering: torch.Tensor, bins: int) -> torch.Tensor:
+    """Steering labels [B] in [-1, 1] -> target distributions [B, K] on the two nearest of K evenly
+    spaced values (linear interpolation: their expectation is the label)."""
+    pos = (steering.clamp(-1.0, 1.0) + 1.0) * 0.5 * (bins - 1)  # [B] in [0, K - 1]
+    low = pos.floor().clamp(max=bins - 2)
+    frac = (pos - low)[:, None]  # [B, 1]
+    target = torch.zeros(len(steering), bins, dtype=steering.dtype, device=steering.device)
+    target.scatter_(1, low.long()[:, None], 1.0 - frac)
+    target.scatter_add_(1, low.long()[:, None] + 1, frac)
+    return target
 
 
 def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
