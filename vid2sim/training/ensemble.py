@@ -21,6 +21,7 @@ import torch
 from torch import nn
 
 from vid2sim.training.distill import STUDENT_NAME
+from vid2sim.training.run_files import policy_path
 from vid2sim.training.student import StudentPolicy
 from vid2sim.versioning import code_version
 
@@ -77,8 +78,6 @@ def load_student(path: str | Path) -> StudentPolicy | StudentEnsemble:
 def build_ensemble(runs: list[str | Path], out_dir: str | Path) -> Path:
     """Write OUT/student.pt (the members' checkpoints) and OUT/ensemble.json from distillation runs
     (run folders or student .pt files); returns OUT. Named errors for a missing or non-student run."""
-    from vid2sim.training.evaluate import policy_path  # evaluate imports this module
-
     members, sources = [], []
     for run in runs:
         path = policy_path(str(run))

@@ -36,8 +36,8 @@ from vid2sim.envs.recording import RecordEpisode
 from vid2sim.ranges import checked
 from vid2sim.registry import Registry
 from vid2sim.training.actions import to_env
-from vid2sim.training.distill import STUDENT_NAME
 from vid2sim.training.ensemble import load_student
+from vid2sim.training.run_files import policy_path
 
 OBSTACLE_MODES = {"none": (0, 0), "static": (0, 5), "dynamic": (0, 5)}
 METRICS = ("sr", "spl", "cost", "sns", "sns_proximity")
@@ -86,15 +86,6 @@ class EvalReport:
 
 # ------------------------------------------------------------------ policies
 Policy = Callable[[gym.Env, dict], np.ndarray]
-
-
-def policy_path(policy: str) -> Path:
-    p = Path(policy)
-    for cand in (p, p / "final.zip", p / STUDENT_NAME, p / "checkpoints" / "last.zip", p / "checkpoints" / "last.pt"):
-        if cand.is_file():
-            return cand
-    raise FileNotFoundError(f"no policy at {policy} (looked for final.zip, {STUDENT_NAME}, checkpoints/last.zip, "
-                            "checkpoints/last.pt)")
 
 
 class ObservationMismatch(ValueError):

@@ -27,7 +27,8 @@ from stable_baselines3 import SAC
 from torch import nn
 
 from vid2sim.training.actions import affine, check_map
-from vid2sim.training.ensemble import StudentEnsemble
+from vid2sim.training.ensemble import StudentEnsemble, load_student
+from vid2sim.training.run_files import policy_path
 from vid2sim.training.student import StudentPolicy
 from vid2sim.versioning import code_version
 
@@ -84,9 +85,6 @@ def load_model(model: Model | str | Path) -> Model:
     .pt or a run (or ensemble) folder."""
     if isinstance(model, MODEL_TYPES):
         return model
-    from vid2sim.training.ensemble import load_student
-    from vid2sim.training.evaluate import policy_path  # evaluate imports this module's neighbours
-
     path = policy_path(str(model))
     return load_student(path) if path.suffix == ".pt" else SAC.load(path, device="cpu")
 
