@@ -20,6 +20,8 @@ from vid2sim.formats.walkable import WalkableGrid
 
 pb = import_pybullet()
 
+RAY_HEIGHT = 0.3  # m above the ground the rays start at (the privileged agent's and the teacher's)
+
 
 def ray_angles(n_rays: int, fov_deg: float) -> np.ndarray:
     """n_rays angles [n] in radians, evenly over [-fov/2, fov/2] around the heading (left positive)."""

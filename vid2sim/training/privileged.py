@@ -22,14 +22,14 @@ import numpy as np
 from gymnasium import spaces
 
 from vid2sim.envs.nav_env import NavEnv
-from vid2sim.envs.sensing import mesh_ranges, ray_angles, walkable_ranges, world_grid
+from vid2sim.envs.sensing import RAY_HEIGHT, mesh_ranges, ray_angles, walkable_ranges, world_grid
 
 PRIVILEGED_ID = "vid2sim/PointNavPrivileged-v0"
 
 
 class PrivilegedNavEnv(NavEnv):
     def __init__(self, *args: Any, n_rays: int = 11, fov_deg: float = 200.0, max_range: float = 5.0,
-                 ray_height: float = 0.3, max_steps: Optional[int] = None, **kwargs: Any) -> None:
+                 ray_height: float = RAY_HEIGHT, max_steps: Optional[int] = None, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
         if max_steps:  # a shorter training horizon (truncation, bootstrapped); evaluation keeps 3000
             self.config = replace(self.config, reward=replace(self.config.reward, max_steps=max_steps))

@@ -23,7 +23,7 @@ the other side of an obstacle), the path is re-planned from the robot's position
 the way to the goal from where the robot is, not back to a path it left.
 With `clearance_rays` = K > 0 it also adds `info["teacher_clearance"]` float32 [K]: what the camera
 looks at, as privileged ranges (`envs/sensing.py`): K rays from the robot centre at
-`CLEARANCE_HEIGHT` over the camera's horizontal field of view (left to right as seen), each the
+`RAY_HEIGHT` (`envs/sensing.py`) over the camera's horizontal field of view (left to right as seen), each the
 nearer of the collision-mesh / obstacle hit and the walkable map's edge, divided by
 `CLEARANCE_RANGE` m (saturating at 1). The pixel student may learn to predict it (an auxiliary target).
 """
@@ -37,11 +37,10 @@ import gymnasium as gym
 import numpy as np
 
 from vid2sim.envs.expert import PurePursuitExpert
-from vid2sim.envs.sensing import camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
+from vid2sim.envs.sensing import RAY_HEIGHT, camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
 
 STUCK = "stuck"
 CLEARANCE_RANGE = 5.0  # m: the teacher's clearance readings saturate here
-CLEARANCE_HEIGHT = 0.3  # m above the ground, as the privileged agent's rays
 
 
 class StuckTermination(gym.Wrapper):
@@ -99,7 +98,7 @@ class TeacherLabels(gym.Wrapper):
         """Privileged clearance over the camera's view [K] in [0, 1] (see the module docs)."""
         base = self.env.unwrapped
         x, y, yaw = base.state.x, base.state.y, base.state.yaw
-        mesh = mesh_ranges(base.world.physics, x, y, yaw, self.clearance_angles, CLEARANCE_RANGE, CLEARANCE_HEIGHT)
+        mesh = mesh_ranges(base.world.physics, x, y, yaw, self.clearance_angles, CLEARANCE_RANGE, RAY_HEIGHT)
         walk = walkable_ranges(world_grid(base.world), x, y, yaw, self.clearance_angles, CLEARANCE_RANGE)
         return (np.minimum(mesh, walk) / CLEARANCE_RANGE).astype(np.float32)
 
