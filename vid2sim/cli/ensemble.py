@@ -21,8 +21,5 @@ def ensemble_command(
     existing_sources(runs, "RUNS")
     creatable_folder(out, "--out")
     folder = build_ensemble(runs, out)
-    if as_json:
-        typer.echo((folder / ENSEMBLE_META).read_text())
-        return
-    meta = json.loads((folder / ENSEMBLE_META).read_text())
-    typer.echo(f"ensemble of {len(meta['members'])} students: {folder}")
+    text = (folder / ENSEMBLE_META).read_text()
+    typer.echo(text if as_json else f"ensemble of {len(json.loads(text)['members'])} students: {folder}")

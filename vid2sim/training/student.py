@@ -104,8 +104,9 @@ class StudentPolicy(nn.Module):
         n_out = 1 + config.steer_bins if config.steer_bins else 2  # speed + steering bins, or speed + steering
         self.head = nn.Sequential(nn.Linear(config.frames * config.frame_dim + config.vector_dim, config.hidden),
                                   nn.ReLU(), nn.Linear(config.hidden, n_out))
-        # [K] steering value of each bin (derived from the config, so not in the state dict)
-        self.register_buffer("steer_values", torch.linspace(-1.0, 1.0, max(config.steer_bins, 1)), persistent=False)
+        # [K] steering value of each bin, with steer_bins (derived from the config, so not in the state dict)
+        bins = torch.linspace(-1.0, 1.0, config.steer_bins) if config.steer_bins else None
+        self.register_buffer("steer_values", bins, persistent=False)
         # trained only (not in the exported graph): the latest frame's features -> clearance [K]
         self.clearance_head = nn.Linear(config.frame_dim, config.clearance_rays) if config.clearance_rays else None
 
