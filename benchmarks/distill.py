@@ -27,7 +27,7 @@ import json
 import resource
 import sys
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Optional
 
@@ -73,8 +73,19 @@ def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr
     return row
 
 
+def finished_budget(run_dir: Path, steps: int) -> Optional[dict]:
+    """The budget a finished run of >= `steps` env steps recorded (run_dir/budget.json), else None."""
+    path = run_dir / "budget.json"
+    budget = json.loads(path.read_text()) if path.is_file() else None
+    return budget if budget and budget["env_steps"] >= steps and (run_dir / "student.pt").is_file() else None
+
+
 def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
+    """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget."""
     run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
+    if (budget := finished_budget(run_dir, args.steps)) is not None:
+        print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
+        return run_dir, budget
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
@@ -85,7 +96,17 @@ def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
                                                                      for k, v in row.items()}), flush=True))
     budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
               "train_cpu_s": round(cpu_seconds() - cpu0), "seed": seed}
+    (run_dir / "budget.json").write_text(json.dumps(budget))
     return run_dir, budget
+
+
+def evaluate_saved(config: EvalConfig, saved: Path) -> EvalReport:
+    """`evaluate(config)`, reusing the report at `saved` when it was made with the same config."""
+    rep = EvalReport.from_json(saved.read_text()) if saved.is_file() else None
+    if rep is None or rep.config != json.loads(json.dumps(asdict(config))):
+        rep = evaluate(config)
+        saved.write_text(rep.to_json())
+    return rep
 
 
 def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[list[str]] = None) -> EvalConfig:
@@ -119,8 +140,7 @@ def evaluate_policy(args, run: Run, reg: str, policy_dir: Path, name: str, budge
     for task, obstacles in (("pointnav", "static"), ("socialnav", "dynamic")):
         if task == "socialnav" and not args.socialnav:
             continue
-        rep = evaluate(eval_config(args, reg, policy_dir, obstacles))
-        (policy_dir / f"eval_{task}.json").write_text(rep.to_json())
+        rep = evaluate_saved(eval_config(args, reg, policy_dir, obstacles), policy_dir / f"eval_{task}.json")
         metrics = ("sr", "spl", "cost") + (("sns",) if task == "socialnav" else ())
         record_eval(run, f"{task} {name}", rep, budget, metrics)
         successes[task] += [float(r["success"]) for r in rep.records]
@@ -156,8 +176,8 @@ def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict)
     """The held-out protocol on the first `--train-eval` of the run's own training streets: SR there
     against held-out SR separates what the student failed to learn from what it failed to transfer."""
     scenes = TrainConfig.load(run_dir / "config.json").scene_ids[:args.train_eval]
-    rep = evaluate(eval_config(args, reg, run_dir, "static", scenes))
-    (run_dir / "eval_pointnav_training_streets.json").write_text(rep.to_json())
+    rep = evaluate_saved(eval_config(args, reg, run_dir, "static", scenes),
+                         run_dir / "eval_pointnav_training_streets.json")
     record_eval(run, f"pointnav seed {budget['seed']}, {len(scenes)} training streets", rep, budget)
 
 

@@ -14,7 +14,7 @@ import ray
 from tests.conftest import PROJECT_ROOT
 from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.training.config import SACConfig
-from vid2sim.training.evaluate import EvalConfig, bootstrap_ci, evaluate, summarize
+from vid2sim.training.evaluate import EvalConfig, EvalReport, Interval, bootstrap_ci, evaluate, summarize
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
 from vid2sim.training.study import StudyConfig, StudyError, StudyRow, check_counts, plot, run_study
@@ -33,6 +33,15 @@ def test_summary_by_hand():
     assert metrics["cost"].mean == pytest.approx(0.75)
     assert per_scene["a"]["spl"] == pytest.approx(0.75) and per_scene["b"]["sr"] == 0.5
     assert metrics["sr"].low <= 0.75 <= metrics["sr"].high
+
+
+def test_eval_report_saved_then_loaded_is_equal():
+    records = [rec(True, 10.0), rec(False, 5.0, 2)]
+    metrics, per_scene = summarize(records, ["a", "b"])
+    report = EvalReport(config={"trials": 1}, episodes=2, metrics=metrics, per_scene=per_scene,
+                        records=[{"success": True}, {"success": False}])
+    loaded = EvalReport.from_json(report.to_json())
+    assert loaded == report and isinstance(loaded.metrics["sr"], Interval)
 
 
 def test_bootstrap_interval_shrinks_with_more_episodes():

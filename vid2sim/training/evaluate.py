@@ -83,6 +83,13 @@ class EvalReport:
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=2)
 
+    @classmethod
+    def from_json(cls, text: str) -> "EvalReport":
+        """The report `to_json` wrote."""
+        data = json.loads(text)
+        data["metrics"] = {k: Interval(**v) for k, v in data["metrics"].items()}
+        return cls(**data)
+
 
 # ------------------------------------------------------------------ policies
 Policy = Callable[[gym.Env, dict], np.ndarray]

@@ -1,0 +1,194 @@
+"""Sim-to-real without a robot: pixel students trained on factory reconstructions, tested in ground truth.
+
+    python benchmarks/sim2real.py --root /tmp/vid2sim-distill --streets 40 --train 8 --steps 64000 --seed 0
+
+The procedural street's ground truth plays the real world; the factory only ever sees the video
+rendered from it. For the first `--train` streets of the registry's training split (varied
+streets, `benchmarks/street_registry.py --vary`): render the walk as a 10-s 854x480 video
+(`synthetic.varied(seed, "demo")`), ingest every video through the factory (`fast` pipeline,
+`quick` reconstruction preset) into a second registry, then distill three students with the
+same recipe, seed and budget:
+  splat    on the reconstructed scenes, rendered from their Gaussian splats (Vid2Sim);
+  mesh-rgb on the same reconstructions, rendered from their coloured visual mesh (the paper's
+           mesh baseline, `--variant mesh-rgb`);
+  gt       on the ground-truth bundles of the same streets (the upper bound).
+All three are evaluated in the ground-truth worlds (splat rendering of the GT bundle, exact
+fidelity) of the split's held-out streets, and of their own training streets, with
+`vid2sim eval policy`'s protocol (0-5 static obstacles, seeds 1000 + k, a `--eval-max-steps`
+limit). Every stage is resumable: finished renders, reconstructions and trainings are reused.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import time
+from dataclasses import replace
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+from common import Run, add_run_args
+from distill import cpu_seconds, evaluate_saved, finished_budget, record_eval
+from street_registry import build
+
+from vid2sim.registry import Registry, RegistryNotFound
+from vid2sim.training.config import DistillConfig, TrainConfig
+from vid2sim.training.distill import train_distill
+from vid2sim.training.evaluate import EvalConfig
+
+VARIANTS = ("splat", "mesh-rgb", "gt")
+
+
+def street_seed(scene_id: str) -> int:
+    """street-v12 -> 12 (the varied street's generator seed)."""
+    return int(scene_id.removeprefix("street-v"))
+
+
+def choose_streets(gt_registry: str, n_train: int) -> tuple[list[str], list[str]]:
+    """The first n_train streets of the split's training side (by seed) and all its held-out ones."""
+    split = Registry(gt_registry).split(seed=0)
+    train = sorted(split.train, key=street_seed)[:n_train]
+    return train, sorted(split.test, key=street_seed)
+
+
+def render_clip(seed: int, clips: Path) -> Path:
+    """The 10-s walk through varied street `seed` as <clips>/street-v<seed>.mp4 (a finished render is reused)."""
+    from vid2sim.factory.synthetic import generate_street, render_video, varied
+
+    conf = replace(varied(seed, "demo"), write_depth=False)
+    clip = render_video(generate_street(conf), conf, clips / f"street-v{seed}")
+    video = clips / f"street-v{seed}.mp4"  # the file name becomes the registry id's stem
+    if not video.exists():
+        shutil.copyfile(clip.video, video)
+    return video
+
+
+def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
+    """Render and ingest every street the reconstruction registry lacks -> its root."""
+    from vid2sim.factory.recon.config import preset as recon_preset
+    from vid2sim.factory.runtime.pipeline import ingest, preset
+
+    recon_root = root / "sim2real" / "registry"
+    have = recon_scenes(str(recon_root))
+    todo = [s for s in streets if s not in have]
+    if todo:
+        t0 = time.perf_counter()
+        with ProcessPoolExecutor(workers) as pool:
+            videos = list(pool.map(render_clip, [street_seed(s) for s in todo],
+                                   [root / "sim2real" / "clips"] * len(todo)))
+        run.record(f"render {len(todo)} videos, 10 s 854x480", "wall_s", time.perf_counter() - t0, "s")
+        t0 = time.perf_counter()
+        report = ingest([str(v) for v in videos], str(recon_root), workdir=root / "sim2real" / "work",
+                        conf=replace(preset("fast"), recon=recon_preset("quick")), num_cpus=workers,
+                        licence="CC0-synthetic", capture_height=1.5)
+        run.record(f"ingest {len(todo)} videos (fast pipeline, quick recon)", "wall_s",
+                   time.perf_counter() - t0, "s")
+        for r in report.results:
+            print(json.dumps({"clip": r.clip, "ok": r.ok, "stage": r.failed_stage, "reason": r.reason}), flush=True)
+    have = recon_scenes(str(recon_root))
+    missing = [s for s in streets if s not in have]
+    if missing:
+        raise SystemExit(f"reconstruction failed for {missing}: see the ingest report above")
+    for street in streets:
+        rec = have[street]
+        run.record_all(f"reconstruction of {street}", {"psnr_db": rec.metrics.get("recon.psnr"),
+                                                       "splats": rec.num_splats,
+                                                       "walkable_m2": rec.walkable_area_m2}, "")
+    return str(recon_root)
+
+
+def recon_scenes(recon_registry: str) -> dict:
+    """GT street id -> the latest record of its reconstruction (ids street-vN-<sha8>)."""
+    try:
+        records = Registry(recon_registry).list()
+    except RegistryNotFound:  # nothing ingested yet
+        return {}
+    return {r.scene_id.rsplit("-", 1)[0]: r for r in records}
+
+
+def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple[Path, dict]:
+    """Distil one student on `scene_ids` (rendered as the variant names) -> run folder, budget."""
+    run_dir = args.root / "sim2real" / f"{name}_{args.steps}_s{args.seed}{args.tag}"
+    variant = "mesh-rgb" if name == "mesh-rgb" else "rgb"
+    config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=registry, n_envs=args.envs,
+                         n_actors=0, seed=args.seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
+                         env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
+                                     "checkout_root": str(args.root / "checkouts")},
+                         distill=DistillConfig())
+    if (budget := finished_budget(run_dir, args.steps)) is not None:
+        return run_dir, budget
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
+    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                                                                     for k, v in row.items()}), flush=True))
+    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
+              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": args.seed, "scenes": scene_ids}
+    (run_dir / "budget.json").write_text(json.dumps(budget))
+    return run_dir, budget
+
+
+def evaluate_in_gt(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
+                   where: str, scenes: list[str], trials: int, world: str = "splat") -> None:
+    """The evaluation protocol in the ground-truth worlds of `scenes`, rendered from the GT bundle's
+    splats (`world` "splat") or its flat-coloured GT mesh ("mesh"); a saved report of the same
+    protocol is reused."""
+    config = EvalConfig(registry=gt_registry, policy=str(run_dir), scene_ids=scenes, trials=trials,
+                        obstacles="static", max_steps=args.eval_max_steps or None,
+                        variant="mesh-rgb" if world == "mesh" else "rgb",
+                        checkout_root=str(args.root / "checkouts"))
+    rep = evaluate_saved(config, run_dir / f"eval_gt_{world}_{where}.json")
+    record_eval(run, f"{name} student in GT {where} streets" + (", GT mesh rendering" if world == "mesh" else ""), rep,
+                {k: v for k, v in budget.items() if k != "scenes"} | {"trials": trials, "scenes": len(scenes)})
+
+
+def run_sim2real(args, run: Run) -> None:
+    gt_registry = str(build(args.root, list(range(1, args.streets + 1)), vary=True).root)
+    train, heldout = choose_streets(gt_registry, args.train)
+    run.config.update({"train_streets": train, "heldout_streets": heldout})
+    print(json.dumps({"train": train, "heldout": heldout}), flush=True)
+    sources = {"gt": (gt_registry, train)}
+    if args.recon_only or set(args.variants) - {"gt"}:
+        recon_registry = reconstruct(run, args.root, train, args.workers)
+        recon_ids = [recon_scenes(recon_registry)[s].scene_id for s in train]
+        sources |= {"splat": (recon_registry, recon_ids), "mesh-rgb": (recon_registry, recon_ids)}
+    if args.recon_only:
+        return
+    for name in args.variants:
+        run_dir, budget = train_student(args, name, *sources[name])
+        run.record_all(f"{name} student", {"train_wall_s": budget["train_wall_s"],
+                                           "train_cpu_s": budget["train_cpu_s"]}, "s", {"seed": args.seed})
+        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
+        if args.train_trials:
+            evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "training", train, args.train_trials)
+        if args.mesh_world_trials:
+            evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
+                           args.mesh_world_trials, world="mesh")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--root", type=Path, default=Path("/tmp/vid2sim-distill"),
+                    help="the GT street registry (built when absent) and sim2real/ (videos, reconstructions, runs)")
+    ap.add_argument("--streets", type=int, default=40, help="varied streets in the GT registry (20 %% held out)")
+    ap.add_argument("--train", type=int, default=8, help="training streets reconstructed through the factory")
+    ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
+    ap.add_argument("--envs", type=int, default=8)
+    ap.add_argument("--trials", type=int, default=10, help="episodes per held-out GT street")
+    ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
+    ap.add_argument("--mesh-world-trials", type=int, default=0,
+                    help="also evaluate in the held-out GT worlds rendered from their flat-coloured GT mesh")
+    ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
+    ap.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="renders / Ray CPUs for the ingest")
+    ap.add_argument("--recon-only", action="store_true", help="stop after the reconstructions")
+    ap.add_argument("--tag", default="")
+    add_run_args(ap)
+    args = ap.parse_args()
+    with Run("sim2real", args) as run:
+        run_sim2real(args, run)
+
+
+if __name__ == "__main__":
+    main()
