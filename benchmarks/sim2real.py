@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import time
 from dataclasses import replace
@@ -69,6 +70,7 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
     """Render and ingest every street the reconstruction registry lacks -> its root."""
     from vid2sim.factory.recon.config import preset as recon_preset
     from vid2sim.factory.runtime.pipeline import ingest, preset
+    from vid2sim.factory.synthetic import StreetConfig  # the walk's camera height (every varied street's)
 
     recon_root = root / "sim2real" / "registry"
     have = recon_scenes(str(recon_root))
@@ -82,11 +84,11 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
         t0 = time.perf_counter()
         report = ingest([str(v) for v in videos], str(recon_root), workdir=root / "sim2real" / "work",
                         conf=replace(preset("fast"), recon=recon_preset("quick")), num_cpus=workers,
-                        licence="CC0-synthetic", capture_height=1.5)
+                        licence="CC0-synthetic", capture_height=StreetConfig().capture_height)
         run.record(f"ingest {len(todo)} videos (fast pipeline, quick recon)", "wall_s",
                    time.perf_counter() - t0, "s")
         for r in report.results:
-            print(json.dumps({"clip": r.clip, "ok": r.ok, "stage": r.failed_stage, "reason": r.reason}), flush=True)
+            print(json.dumps({"clip": r.clip_id, "ok": r.ok, "stage": r.failed_stage, "reason": r.reason}), flush=True)
     have = recon_scenes(str(recon_root))
     missing = [s for s in streets if s not in have]
     if missing:
@@ -100,12 +102,12 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
 
 
 def recon_scenes(recon_registry: str) -> dict:
-    """GT street id -> the latest record of its reconstruction (ids street-vN-<sha8>)."""
+    """GT street id -> the latest record of its reconstruction (ids street-vN-<sha8>-<window>)."""
     try:
         records = Registry(recon_registry).list()
     except RegistryNotFound:  # nothing ingested yet
         return {}
-    return {r.scene_id.rsplit("-", 1)[0]: r for r in records}
+    return {m.group(1): r for r in records if (m := re.match(r"(street-v\d+)-", r.scene_id))}
 
 
 def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple[Path, dict]:
