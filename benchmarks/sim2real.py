@@ -73,6 +73,7 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
     from vid2sim.factory.synthetic import StreetConfig  # the walk's camera height (every varied street's)
 
     recon_root = root / "sim2real" / "registry"
+    timings = root / "sim2real" / "reconstruction.json"  # the seconds of the call that made them
     have = recon_scenes(str(recon_root))
     todo = [s for s in streets if s not in have]
     if todo:
@@ -80,19 +81,22 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
         with ProcessPoolExecutor(workers) as pool:
             videos = list(pool.map(render_clip, [street_seed(s) for s in todo],
                                    [root / "sim2real" / "clips"] * len(todo)))
-        run.record(f"render {len(todo)} videos, 10 s 854x480", "wall_s", time.perf_counter() - t0, "s")
-        t0 = time.perf_counter()
+        t1 = time.perf_counter()
         report = ingest([str(v) for v in videos], str(recon_root), workdir=root / "sim2real" / "work",
                         conf=replace(preset("fast"), recon=recon_preset("quick")), num_cpus=workers,
                         licence="CC0-synthetic", capture_height=StreetConfig().capture_height)
-        run.record(f"ingest {len(todo)} videos (fast pipeline, quick recon)", "wall_s",
-                   time.perf_counter() - t0, "s")
+        timings.write_text(json.dumps({"streets": todo, "render_wall_s": t1 - t0,
+                                       "ingest_wall_s": time.perf_counter() - t1}))
         for r in report.results:
             print(json.dumps({"clip": r.clip_id, "ok": r.ok, "stage": r.failed_stage, "reason": r.reason}), flush=True)
     have = recon_scenes(str(recon_root))
     missing = [s for s in streets if s not in have]
     if missing:
         raise SystemExit(f"reconstruction failed for {missing}: see the ingest report above")
+    if timings.is_file():
+        t = json.loads(timings.read_text())
+        run.record_all(f"render and ingest {len(t['streets'])} videos, 10 s 854x480 (fast pipeline, quick recon)",
+                       {"render_wall_s": t["render_wall_s"], "ingest_wall_s": t["ingest_wall_s"]}, "s")
     for street in streets:
         rec = have[street]
         run.record_all(f"reconstruction of {street}", {"psnr_db": rec.metrics.get("recon.psnr"),
@@ -140,7 +144,8 @@ def evaluate_in_gt(args, run: Run, gt_registry: str, name: str, run_dir: Path, b
                         variant="mesh-rgb" if world == "mesh" else "rgb",
                         checkout_root=str(args.root / "checkouts"))
     rep = evaluate_saved(config, run_dir / f"eval_gt_{world}_{where}.json")
-    record_eval(run, f"{name} student in GT {where} streets" + (", GT mesh rendering" if world == "mesh" else ""), rep,
+    case = f"{name} student, seed {budget['seed']}, in GT {where} streets"
+    record_eval(run, case + (", GT mesh rendering" if world == "mesh" else ""), rep,
                 {k: v for k, v in budget.items() if k != "scenes"} | {"trials": trials, "scenes": len(scenes)})
 
 
@@ -158,7 +163,7 @@ def run_sim2real(args, run: Run) -> None:
         return
     for name in args.variants:
         run_dir, budget = train_student(args, name, *sources[name])
-        run.record_all(f"{name} student", {"train_wall_s": budget["train_wall_s"],
+        run.record_all(f"{name} student, seed {args.seed}", {"train_wall_s": budget["train_wall_s"],
                                            "train_cpu_s": budget["train_cpu_s"]}, "s", {"seed": args.seed})
         evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
         if args.train_trials:
