@@ -29,6 +29,7 @@ import time
 from dataclasses import replace
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Optional
 
 from common import Run, add_run_args
 from distill import cpu_seconds, evaluate_saved, finished_budget, record_eval
@@ -134,18 +135,22 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
     return run_dir, budget
 
 
+WORLD_NAMES = {"splat": "", "mesh": ", GT mesh rendering", "dense": ", dense GT splats"}
+
+
 def evaluate_in_gt(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
-                   where: str, scenes: list[str], trials: int, world: str = "splat") -> None:
+                   where: str, scenes: list[str], trials: int, world: str = "splat",
+                   checkouts: Optional[Path] = None) -> None:
     """The evaluation protocol in the ground-truth worlds of `scenes`, rendered from the GT bundle's
-    splats (`world` "splat") or its flat-coloured GT mesh ("mesh"); a saved report of the same
-    protocol is reused."""
+    splats (`world` "splat", or "dense": a registry of the same streets with more splats) or its
+    flat-coloured GT mesh ("mesh"); a saved report of the same protocol is reused."""
     config = EvalConfig(registry=gt_registry, policy=str(run_dir), scene_ids=scenes, trials=trials,
                         obstacles="static", max_steps=args.eval_max_steps or None,
                         variant="mesh-rgb" if world == "mesh" else "rgb",
-                        checkout_root=str(args.root / "checkouts"))
+                        checkout_root=str(checkouts or args.root / "checkouts"))
     rep = evaluate_saved(config, run_dir / f"eval_gt_{world}_{where}.json")
     case = f"{name} student, seed {budget['seed']}, in GT {where} streets"
-    record_eval(run, case + (", GT mesh rendering" if world == "mesh" else ""), rep,
+    record_eval(run, case + WORLD_NAMES[world], rep,
                 {k: v for k, v in budget.items() if k != "scenes"} | {"trials": trials, "scenes": len(scenes)})
 
 
@@ -171,6 +176,11 @@ def run_sim2real(args, run: Run) -> None:
         if args.mesh_world_trials:
             evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
                            args.mesh_world_trials, world="mesh")
+        if args.dense_world_trials:
+            dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
+            registry = str(build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True).root)
+            evaluate_in_gt(args, run, registry, name, run_dir, budget, "held-out", heldout,
+                           args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
 
 
 def main() -> None:
@@ -187,6 +197,9 @@ def main() -> None:
     ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
     ap.add_argument("--mesh-world-trials", type=int, default=0,
                     help="also evaluate in the held-out GT worlds rendered from their flat-coloured GT mesh")
+    ap.add_argument("--dense-world-trials", type=int, default=0,
+                    help="also evaluate in the held-out GT worlds built with --dense-world-splats splats")
+    ap.add_argument("--dense-world-splats", type=int, default=200_000)
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="renders / Ray CPUs for the ingest")
     ap.add_argument("--recon-only", action="store_true", help="stop after the reconstructions")
