@@ -15,7 +15,10 @@ same recipe, seed and budget:
 All three are evaluated in the ground-truth worlds (splat rendering of the GT bundle, exact
 fidelity) of the split's held-out streets, and of their own training streets, with
 `vid2sim eval policy`'s protocol (0-5 static obstacles, seeds 1000 + k, a `--eval-max-steps`
-limit). Every stage is resumable: finished renders, reconstructions and trainings are reused.
+limit). The test world's rendering matters, so two more can be asked for: the held-out streets'
+flat-coloured GT mesh (`--mesh-world-trials`) and the same streets built with more GT splats
+(`--dense-world-trials`, `--dense-world-splats`), closer to the video. Every stage is resumable:
+finished renders, reconstructions, trainings and evaluations of the same protocol are reused.
 """
 
 from __future__ import annotations
@@ -169,18 +172,26 @@ def run_sim2real(args, run: Run) -> None:
     for name in args.variants:
         run_dir, budget = train_student(args, name, *sources[name])
         run.record_all(f"{name} student, seed {args.seed}", {"train_wall_s": budget["train_wall_s"],
-                                           "train_cpu_s": budget["train_cpu_s"]}, "s", {"seed": args.seed})
-        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
-        if args.train_trials:
-            evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "training", train, args.train_trials)
-        if args.mesh_world_trials:
-            evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
-                           args.mesh_world_trials, world="mesh")
-        if args.dense_world_trials:
-            dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
-            registry = str(build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True).root)
-            evaluate_in_gt(args, run, registry, name, run_dir, budget, "held-out", heldout,
-                           args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
+                                                             "train_cpu_s": budget["train_cpu_s"]}, "s",
+                       {"seed": args.seed})
+        evaluate_student(args, run, gt_registry, name, run_dir, budget, train, heldout)
+
+
+def evaluate_student(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
+                     train: list[str], heldout: list[str]) -> None:
+    """Every test the arguments ask for: held-out GT streets, the student's own streets in GT, the
+    held-out streets as a flat-coloured mesh and with dense GT splats."""
+    evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
+    if args.train_trials:
+        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "training", train, args.train_trials)
+    if args.mesh_world_trials:
+        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
+                       args.mesh_world_trials, world="mesh")
+    if args.dense_world_trials:
+        dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
+        registry = str(build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True).root)
+        evaluate_in_gt(args, run, registry, name, run_dir, budget, "held-out", heldout,
+                       args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
 
 
 def main() -> None:
