@@ -37,7 +37,7 @@ from common import Run, add_run_args  # noqa: E402
 from street_registry import build  # noqa: E402
 
 from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
-from vid2sim.training.distill import train_distill  # noqa: E402
+from vid2sim.training.distill import STUDENT_NAME, train_distill  # noqa: E402
 from vid2sim.training.ensemble import build_ensemble  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
@@ -77,27 +77,34 @@ def finished_budget(run_dir: Path, steps: int) -> Optional[dict]:
     """The budget a finished run of >= `steps` env steps recorded (run_dir/budget.json), else None."""
     path = run_dir / "budget.json"
     budget = json.loads(path.read_text()) if path.is_file() else None
-    return budget if budget and budget["env_steps"] >= steps and (run_dir / "student.pt").is_file() else None
+    return budget if budget and budget["env_steps"] >= steps and (run_dir / STUDENT_NAME).is_file() else None
+
+
+def train_or_reuse(config: TrainConfig, **extra) -> dict:
+    """Train the distillation run `config` describes and write its budget (env steps, wall and CPU
+    seconds, seed, `extra`) to budget.json; a finished run of the same folder is reused."""
+    run_dir = Path(config.run_dir)
+    if (budget := finished_budget(run_dir, config.total_steps)) is not None:
+        print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
+        return budget
+    t0, cpu0 = time.perf_counter(), cpu_seconds()
+    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                                                                     for k, v in row.items()}), flush=True))
+    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
+              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": config.seed, **extra}
+    (run_dir / "budget.json").write_text(json.dumps(budget))
+    return budget
 
 
 def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget."""
     run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
-    if (budget := finished_budget(run_dir, args.steps)) is not None:
-        print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
-        return run_dir, budget
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
                                      "fidelity": args.fidelity},
                          distill=distill_config(args))
-    t0, cpu0 = time.perf_counter(), cpu_seconds()
-    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
-                                                                     for k, v in row.items()}), flush=True))
-    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
-              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": seed}
-    (run_dir / "budget.json").write_text(json.dumps(budget))
-    return run_dir, budget
+    return run_dir, train_or_reuse(config)
 
 
 def evaluate_saved(config: EvalConfig, saved: Path) -> EvalReport:

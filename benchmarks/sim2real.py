@@ -35,12 +35,11 @@ from pathlib import Path
 from typing import Optional
 
 from common import Run, add_run_args
-from distill import cpu_seconds, evaluate_saved, finished_budget, record_eval
+from distill import evaluate_saved, record_eval, train_or_reuse
 from street_registry import build
 
 from vid2sim.registry import Registry, RegistryNotFound
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import train_distill
 from vid2sim.training.evaluate import EvalConfig
 
 VARIANTS = ("splat", "mesh-rgb", "gt")
@@ -54,6 +53,8 @@ def street_seed(scene_id: str) -> int:
 def choose_streets(gt_registry: str, n_train: int) -> tuple[list[str], list[str]]:
     """The first n_train streets of the split's training side (by seed) and all its held-out ones."""
     split = Registry(gt_registry).split(seed=0)
+    if not 1 <= n_train <= len(split.train):
+        raise SystemExit(f"--train {n_train}: the split of {gt_registry} has {len(split.train)} training streets")
     train = sorted(split.train, key=street_seed)[:n_train]
     return train, sorted(split.test, key=street_seed)
 
@@ -70,8 +71,9 @@ def render_clip(seed: int, clips: Path) -> Path:
     return video
 
 
-def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
-    """Render and ingest every street the reconstruction registry lacks -> its root."""
+def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> tuple[str, dict]:
+    """Render and ingest every street the reconstruction registry lacks -> its root, and each
+    street's reconstruction record."""
     from vid2sim.factory.recon.config import preset as recon_preset
     from vid2sim.factory.runtime.pipeline import ingest, preset
     from vid2sim.factory.synthetic import StreetConfig  # the walk's camera height (every varied street's)
@@ -106,7 +108,7 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> str:
         run.record_all(f"reconstruction of {street}", {"psnr_db": rec.metrics.get("recon.psnr"),
                                                        "splats": rec.num_splats,
                                                        "walkable_m2": rec.walkable_area_m2}, "")
-    return str(recon_root)
+    return str(recon_root), have
 
 
 def recon_scenes(recon_registry: str) -> dict:
@@ -127,15 +129,7 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
                          distill=DistillConfig())
-    if (budget := finished_budget(run_dir, args.steps)) is not None:
-        return run_dir, budget
-    t0, cpu0 = time.perf_counter(), cpu_seconds()
-    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
-                                                                     for k, v in row.items()}), flush=True))
-    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
-              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": args.seed, "scenes": scene_ids}
-    (run_dir / "budget.json").write_text(json.dumps(budget))
-    return run_dir, budget
+    return run_dir, train_or_reuse(config, scenes=scene_ids)
 
 
 WORLD_NAMES = {"splat": "", "mesh": ", GT mesh rendering", "dense": ", dense GT splats"}
@@ -164,23 +158,26 @@ def run_sim2real(args, run: Run) -> None:
     print(json.dumps({"train": train, "heldout": heldout}), flush=True)
     sources = {"gt": (gt_registry, train)}
     if args.recon_only or set(args.variants) - {"gt"}:
-        recon_registry = reconstruct(run, args.root, train, args.workers)
-        recon_ids = [recon_scenes(recon_registry)[s].scene_id for s in train]
+        recon_registry, recons = reconstruct(run, args.root, train, args.workers)
+        recon_ids = [recons[s].scene_id for s in train]
         sources |= {"splat": (recon_registry, recon_ids), "mesh-rgb": (recon_registry, recon_ids)}
     if args.recon_only:
         return
+    dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
+    if args.dense_world_trials:  # the held-out streets again, with more GT splats
+        build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True)
     for name in args.variants:
         run_dir, budget = train_student(args, name, *sources[name])
         run.record_all(f"{name} student, seed {args.seed}", {"train_wall_s": budget["train_wall_s"],
                                                              "train_cpu_s": budget["train_cpu_s"]}, "s",
                        {"seed": args.seed})
-        evaluate_student(args, run, gt_registry, name, run_dir, budget, train, heldout)
+        evaluate_student(args, run, gt_registry, dense, name, run_dir, budget, train, heldout)
 
 
-def evaluate_student(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
+def evaluate_student(args, run: Run, gt_registry: str, dense: Path, name: str, run_dir: Path, budget: dict,
                      train: list[str], heldout: list[str]) -> None:
     """Every test the arguments ask for: held-out GT streets, the student's own streets in GT, the
-    held-out streets as a flat-coloured mesh and with dense GT splats."""
+    held-out streets as a flat-coloured mesh and with dense GT splats (the root `dense`)."""
     evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
     if args.train_trials:
         evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "training", train, args.train_trials)
@@ -188,9 +185,7 @@ def evaluate_student(args, run: Run, gt_registry: str, name: str, run_dir: Path,
         evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
                        args.mesh_world_trials, world="mesh")
     if args.dense_world_trials:
-        dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
-        registry = str(build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True).root)
-        evaluate_in_gt(args, run, registry, name, run_dir, budget, "held-out", heldout,
+        evaluate_in_gt(args, run, str(dense / "registry"), name, run_dir, budget, "held-out", heldout,
                        args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
 
 
