@@ -96,13 +96,18 @@ def train_or_reuse(config: TrainConfig, **extra) -> dict:
     return budget
 
 
+def camera_kwargs(args) -> dict:
+    """The robot camera's override (--camera-vfov), {} for the robot's own camera."""
+    return {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
+
+
 def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
     """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget."""
     run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
-                                     "fidelity": args.fidelity},
+                                     "fidelity": args.fidelity, **camera_kwargs(args)},
                          distill=distill_config(args))
     return run_dir, train_or_reuse(config)
 
@@ -233,6 +238,8 @@ def main() -> None:
                     help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
                     help="weight of the auxiliary clearance loss")
+    ap.add_argument("--camera-vfov", type=float, default=0.0,
+                    help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)
