@@ -286,6 +286,18 @@ def test_checkout_reverifies_an_existing_destination(tmp_path):
     assert (dest / "scene.json").read_text() == "{}" and not [p for p in dest.iterdir() if ".tmp-" in p.name]
 
 
+def test_checkout_over_another_registrys_scene_names_both(tmp_path):
+    ours, theirs = Registry(tmp_path / "ours"), Registry(tmp_path / "theirs")
+    ours.add(make_bundle(tmp_path / "b0", "s1", seed=0))
+    theirs.add(make_bundle(tmp_path / "b1", "s1", seed=1))  # same id@version, other content
+    dest = theirs.checkout("s1", dest=tmp_path / "co")
+    before = {p.name: p.read_bytes() for p in dest.iterdir()}
+    with pytest.raises(RegistryError, match="holds something else") as err:
+        ours.checkout("s1", dest=dest)
+    assert theirs.root in str(err.value) and ours.root in str(err.value) and "s1@1" in str(err.value)
+    assert {p.name: p.read_bytes() for p in dest.iterdir()} == before  # nothing overwritten
+
+
 def test_a_folder_that_is_not_a_registry_is_a_named_error(tmp_path):
     from vid2sim.registry import RegistryNotFound
 

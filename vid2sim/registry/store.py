@@ -106,6 +106,16 @@ def _check_grace(grace_s: float) -> float:
     return g
 
 
+
+def _checkout_owner(done: Optional[dict], rec: SceneRecord, root: str) -> str:
+    """What a checkout folder's marker says it holds, for the error refusing to overwrite it."""
+    if not isinstance(done, dict) or not done:
+        return ""
+    return (f" ({done.get('ref', '?')} content {str(done.get('content_hash', '?'))[:12]} from registry "
+            f"{done.get('registry', '?')}; wanted {rec.ref} content {rec.content_hash[:12]} from {root}:"
+            " check it out under another folder)")
+
+
 def _check_name(name: str) -> str:
     p = Path(name)
     if not name or p.is_absolute() or ".." in p.parts:
@@ -644,7 +654,8 @@ class Registry:
                 self.refresh_checkout(rec, out)
                 return out
         if out.exists() and any(out.iterdir()):
-            raise RegistryError(f"{out}: checkout destination exists and holds something else")
+            raise RegistryError(f"{out}: checkout destination exists and holds something else"
+                                f"{_checkout_owner(done if marker.is_file() else None, rec, self.root)}")
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
         try:
