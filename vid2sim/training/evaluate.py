@@ -109,7 +109,8 @@ def check_observation(env: gym.Env, shapes: dict[str, tuple], policy: str) -> No
                                   "(task, variant or observation arguments differ from its training)")
 
 
-OBSERVATION_KWARGS = ("n_rays", "fov_deg", "max_range", "ray_height", "camera")  # env arguments that shape the observation
+# env arguments that shape the observation (a run trained with them is evaluated with them)
+OBSERVATION_KWARGS = ("n_rays", "fov_deg", "max_range", "ray_height", "camera")
 
 
 def run_observation_kwargs(policy: str) -> dict:
