@@ -14,7 +14,8 @@ import ray
 from tests.conftest import PROJECT_ROOT
 from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.training.config import SACConfig
-from vid2sim.training.evaluate import EvalConfig, EvalReport, Interval, bootstrap_ci, evaluate, summarize
+from vid2sim.training.evaluate import (EvalConfig, EvalReport, Interval, bootstrap_ci, evaluate, run_observation_kwargs,
+                                       summarize)
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
 from vid2sim.training.study import StudyConfig, StudyError, StudyRow, check_counts, plot, run_study
@@ -42,6 +43,16 @@ def test_eval_report_saved_then_loaded_is_equal():
                         records=[{"success": True}, {"success": False}])
     loaded = EvalReport.from_json(report.to_json())
     assert loaded == report and isinstance(loaded.metrics["sr"], Interval)
+
+
+def test_a_runs_camera_and_ray_settings_are_evaluated_with_it(tmp_path):
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "student.pt").write_bytes(b"")
+    (run / "config.json").write_text(json.dumps({"env_kwargs": {
+        "camera": {"vfov_deg": 90.0}, "n_rays": 9, "training": True, "fidelity": "fast"}}))
+    assert run_observation_kwargs(str(run)) == {"camera": {"vfov_deg": 90.0}, "n_rays": 9}
+    assert run_observation_kwargs("expert") == {}
 
 
 def test_bootstrap_interval_shrinks_with_more_episodes():
