@@ -56,11 +56,13 @@ def registry(args) -> str:
 
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
-                            clearance_rays=args.clearance_rays, steer_bins=args.steer_bins)
+                            clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
+                            depth_target=args.depth_target)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
-                   clearance_weight=args.clearance_weight, steer_weight=args.steer_weight, student=student)
+                   clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
+                   depth_weight=args.depth_weight, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -240,6 +242,10 @@ def main() -> None:
                     help="weight of the auxiliary clearance loss")
     ap.add_argument("--camera-vfov", type=float, default=0.0,
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
+    ap.add_argument("--depth-target", action="store_true",
+                    help="student: auxiliary head predicting the frame's nearest depth per cell of its last conv map")
+    ap.add_argument("--depth-weight", type=float, default=DistillConfig.depth_weight,
+                    help="weight of the auxiliary depth loss (with --depth-target)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

@@ -100,6 +100,7 @@ class NavEnv(gym.Env):
         self.timings: dict[str, float] = defaultdict(float)
         self.episode: Optional[Episode] = None  # None: no running episode (step refuses)
         self.ended = False  # the last step returned terminated or truncated
+        self.last_depth: Optional[np.ndarray] = None  # [H, W] m of the latest frame (inf: nothing)
         self.actors: Optional[EpisodeActors] = None
         self.augmenter = Augmenter(self.config.augmentation)
         self.K = intrinsics(self.config.camera)
@@ -290,6 +291,7 @@ class NavEnv(gym.Env):
         rgb, depth = self.world.view.draw(w2c)
         self.timings["render"] += time.process_time() - t0
         rgb, depth, t_obs, t_ped = self.actors.draw_over(rgb, depth, self.K, w2c)
+        self.last_depth = depth  # [H, W] m (inf: nothing), the latest frame's depth, actors included
         self.timings["obstacles"] += t_obs
         self.timings["pedestrians"] += t_ped
         if c.variant == "depth":

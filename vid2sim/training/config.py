@@ -65,6 +65,9 @@ class DistillConfig:
     # the student has a clearance head (student.clearance_rays > 0)
     clearance_weight: float = 1.0
     steer_weight: float = 0.0  # a label counts 1 + this x |its steering| in the action loss (hard turns matter)
+    # weight of the auxiliary depth loss (MSE to the frame's nearest depth per cell, / 5 m) when the student has
+    # a depth head (student.depth_target)
+    depth_weight: float = 1.0
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike

@@ -57,31 +57,39 @@ class DistillError(ValueError):
     """A distillation run that cannot start (named reason first)."""
 
 
+DEPTH_GRID = (9, 16)  # blocks of the 72 x 128 frame the teacher's depth target is stored in (8 x 8 px each)
+
+
 @dataclass
 class Batch:
     """Labelled states of one round: preprocessed frames, goal vectors, teacher actions and (with
-    the auxiliary target) the teacher's clearance readings."""
+    the auxiliary targets) the teacher's clearance readings and the frame's blocked depth."""
 
     frames: np.ndarray  # uint8 [N, frames, C, h, w]
     vectors: np.ndarray  # float32 [N, 6, 2]
     actions: np.ndarray  # float32 [N, 2]
     clearance: Optional[np.ndarray] = None  # float32 [N, K] in [0, 1]; [N, 0] without the target
+    depth: Optional[np.ndarray] = None  # uint8 [N, 9, 16] nearest depth / 5 m x 255; [N, 0, 0] without
 
     def __post_init__(self) -> None:
         if self.clearance is None:
             self.clearance = np.zeros((len(self.actions), 0), np.float32)
+        if self.depth is None:
+            self.depth = np.zeros((len(self.actions), 0, 0), np.uint8)
 
     def save(self, path: Path) -> None:
-        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance)
+        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance,
+                 depth=self.depth)
 
     @classmethod
     def load(cls, path: Path) -> "Batch":
-        with np.load(path) as z:  # shards written before the clearance target have none
-            return cls(z["frames"], z["vectors"], z["actions"], z["clearance"] if "clearance" in z else None)
+        with np.load(path) as z:  # shards written before the auxiliary targets have none
+            return cls(z["frames"], z["vectors"], z["actions"], z["clearance"] if "clearance" in z else None,
+                       z["depth"] if "depth" in z else None)
 
     def take(self, idx: np.ndarray) -> "Batch":
         """Rows idx of every field."""
-        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx])
+        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx])
 
 
 class Dataset:
@@ -132,7 +140,7 @@ class Dataset:
         part = np.searchsorted(starts, rows, side="right") - 1  # [B]
         first = self.parts[0]
         out = Batch(*(np.empty((len(rows), *a.shape[1:]), a.dtype)
-                      for a in (first.frames, first.vectors, first.actions, first.clearance)))
+                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth)))
         for j in np.unique(part):
             hit = part == j
             local = rows[hit] - starts[j]
@@ -140,8 +148,12 @@ class Dataset:
             if src.clearance.shape[1] != out.clearance.shape[1]:
                 raise DistillError(f"clearance_mismatch: round data with {src.clearance.shape[1]} and "
                                    f"{out.clearance.shape[1]} clearance rays cannot be mixed")
+            if src.depth.shape[1:] != out.depth.shape[1:]:
+                raise DistillError(f"depth_mismatch: round data with depth targets {src.depth.shape[1:]} and "
+                                   f"{out.depth.shape[1:]} cannot be mixed")
             out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
             out.actions[hit], out.clearance[hit] = src.actions[local], src.clearance[local]
+            out.depth[hit] = src.depth[local]
         return out
 
     def arrays(self) -> Batch:
@@ -192,8 +204,9 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     if config.distill.teacher_comfort > 0 and isinstance(episode, dict):  # env arguments given win
         base["episode"] = {"expert_comfort": config.distill.teacher_comfort, **episode}
     rays = config.distill.student.clearance_rays
+    grid = DEPTH_GRID if config.distill.student.depth_target else None
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
-                    config.stuck_steps, teacher=True, teacher_clearance_rays=rays)
+                    config.stuck_steps, teacher=True, teacher_clearance_rays=rays, teacher_depth_grid=grid)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
 
 
@@ -231,10 +244,11 @@ class Collector:
         stats, t0 = RoundStats(), time.perf_counter()
         self._check_labels()
         self.teacher_drives = self.rng.random(self.env.num_envs) < beta_k  # a new round redraws the drivers
-        frames, vectors, actions, clearance = [], [], [], []
+        frames, vectors, actions, clearance, depth = [], [], [], [], []
         for _ in range(max(1, n_steps // self.env.num_envs)):
             teacher = np.stack([np.asarray(info["teacher_action"], np.float32) for info in self.labels])
             seen = np.stack([np.asarray(info.get("teacher_clearance", ()), np.float32) for info in self.labels])
+            near = np.stack([np.asarray(info.get("teacher_depth", np.zeros((0, 0))), np.uint8) for info in self.labels])
             stuck = np.array([bool(info.get("teacher_stuck", False)) for info in self.labels])
             with torch.no_grad():
                 image = torch.from_numpy(self.obs["image"])
@@ -245,6 +259,7 @@ class Collector:
             vectors.append(self.obs["vector"][keep].astype(np.float32))
             actions.append(teacher[keep])
             clearance.append(seen[keep])  # [n, K]; [n, 0] without the target
+            depth.append(near[keep])  # [n, 9, 16]; [n, 0, 0] without the target
             stats.dropped_stuck += int((~keep).sum())
             act = np.where(self.teacher_drives[:, None], teacher, student).astype(np.float32)
             self.obs, _, dones, infos = self.env.step(act)
@@ -258,7 +273,7 @@ class Collector:
                 else:
                     self.labels[i] = info
             self._check_labels()
-        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance)))
+        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance, depth)))
         stats.labels, stats.wall_s = len(batch.actions), time.perf_counter() - t0
         return batch, stats
 
@@ -285,16 +300,18 @@ def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: flo
 
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
         batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0,
-        steer_weight: float = 0.0) -> dict[str, float]:
+        steer_weight: float = 0.0, depth_weight: float = 0.0) -> dict[str, float]:
     """`updates` AdamW steps of `action_loss` to the teacher's labels on random-shifted batches drawn
     uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
-    head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`.
+    head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`, and
+    one with a depth head the frame's blocked depth (`depth_loss`), weighted by `depth_weight`.
     `steer_weight`: see `action_loss`. Returns the mean squared error of the actions to the labels
-    (whatever the steering head) and the clearance loss, over the last tenth of the updates."""
+    (whatever the steering head) and the auxiliary losses, over the last tenth of the updates."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
     aux = student.clearance_head is not None and clearance_weight > 0
-    n, losses, aux_losses, t0 = data.rows(), [], [], time.perf_counter()
+    with_depth = student.depth_head is not None and depth_weight > 0
+    n, losses, aux_losses, depth_losses, t0 = data.rows(), [], [], [], time.perf_counter()
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
@@ -311,6 +328,10 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
             aux_loss = F.mse_loss(clearance, torch.from_numpy(batch.clearance))
             aux_losses.append(aux_loss.item())
             loss = loss + clearance_weight * aux_loss
+        if with_depth:
+            near = depth_loss(pred.depth, batch.depth)
+            depth_losses.append(near.item())
+            loss = loss + depth_weight * near
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -320,7 +341,20 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
            "samples_per_s": updates * batch_size / max(wall, 1e-9)}
     if aux:
         out["clearance_loss"] = float(np.mean(aux_losses[-tail:]))
+    if with_depth:
+        out["depth_loss"] = float(np.mean(depth_losses[-tail:]))
     return out
+
+
+def depth_loss(predicted: torch.Tensor, stored: np.ndarray) -> torch.Tensor:
+    """MSE of the depth head [B, h', w'] (in [0, 1]) to the stored blocked depth uint8 [B, 9, 16], min-pooled to
+    the head's map (nearest stays nearest)."""
+    if stored.ndim != 3 or stored.shape[1] == 0:
+        raise DistillError("depth_mismatch: the student has a depth head, the data holds no depth target "
+                           "(rounds collected without it)")
+    target = torch.from_numpy(stored).float()[:, None] / 255.0  # [B, 1, 9, 16]
+    target = -F.adaptive_max_pool2d(-target, predicted.shape[1:])[:, 0]  # [B, h', w']
+    return F.mse_loss(predicted, target)
 
 
 def _one_part(batch: Batch) -> Dataset:
@@ -403,7 +437,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             dataset.add(batch)
             done += stats.steps
             fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng,
-                         d.clearance_weight, d.steer_weight)
+                         d.clearance_weight, d.steer_weight, d.depth_weight)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),

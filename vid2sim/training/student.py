@@ -20,7 +20,11 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
   both; the action is the probability-weighted steering of the most likely bin and its two
   neighbours (`steer_from_logits`, in the exported graph too);
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
-  clearance readings in [0, 1], trained as an auxiliary target and left out of the export.
+  clearance readings in [0, 1], trained as an auxiliary target and left out of the export;
+- optionally (`depth_target`) a 1 x 1 conv head on the latest frame's last conv map (5 x 8 at
+  36 x 64) predicting the nearest depth in each cell, / 5 m, in [0, 1]: a dense auxiliary target
+  (the teacher's `depth_blocks`, min-pooled to the map) that asks the encoder where things are and
+  how near, also left out of the export.
 `preprocess` (select + pool) and `act` (the network) are separate so the learner stores the
 small preprocessed frames and augments them (random shifts) before `act`; `forward` is
 `act(preprocess(...))`, the graph that is exported.
@@ -55,6 +59,7 @@ class StudentConfig:
     hidden: int = 256  # head width
     clearance_rays: int = 0  # auxiliary head: the teacher's clearance over the view, K rays (0: none)
     steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
+    depth_target: bool = False  # auxiliary head: the latest frame's nearest depth per cell of the last conv map
 
     def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
         if (self.frames - 1) * self.frame_stride + 1 > STACK:
@@ -109,6 +114,8 @@ class StudentPolicy(nn.Module):
         self.register_buffer("steer_values", bins, persistent=False)
         # trained only (not in the exported graph): the latest frame's features -> clearance [K]
         self.clearance_head = nn.Linear(config.frame_dim, config.clearance_rays) if config.clearance_rays else None
+        # trained only: the latest frame's last conv map [c4, h', w'] -> nearest depth / 5 m per cell [h', w']
+        self.depth_head = nn.Conv2d(config.channels[-1], 1, 1) if config.depth_target else None
 
     @property
     def input_shape(self) -> tuple[int, int, int, int]:
@@ -135,7 +142,8 @@ class StudentPolicy(nn.Module):
         clearance head), what the learner's losses need."""
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
-        per_frame = self.frame_head(self.encoder(x)).reshape(b, k, -1)  # [B, frames, frame_dim]
+        maps = self.encoder[:-1](x)  # [B * frames, c4, h', w'] (the encoder without its Flatten)
+        per_frame = self.frame_head(maps.flatten(1)).reshape(b, k, -1)  # [B, frames, frame_dim]
         vec = self.vector_head(vector.float().flatten(1) * self.vector_scale)
         out = self.head(torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, 2] or [B, 1 + K]
         logits = out[:, 1:] if self.config.steer_bins else None
@@ -143,7 +151,9 @@ class StudentPolicy(nn.Module):
         actions = torch.stack([torch.tanh(out[:, 0]), steering], dim=1)  # [B, 2]
         clearance = (torch.sigmoid(self.clearance_head(per_frame[:, -1])) if self.clearance_head is not None
                      else actions.new_zeros(b, 0))  # [B, K] in [0, 1]
-        return StudentOutputs(actions, logits, clearance)
+        depth = (torch.sigmoid(self.depth_head(maps.reshape(b, k, *maps.shape[1:])[:, -1]))[:, 0]
+                 if self.depth_head is not None else actions.new_zeros(b, 0, 0))  # [B, h', w'] in [0, 1]
+        return StudentOutputs(actions, logits, clearance, depth)
 
     def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         return self.act(self.preprocess(image), vector)
@@ -172,6 +182,7 @@ class StudentOutputs:
     actions: torch.Tensor  # [B, 2] speed, steering in [-1, 1]
     steer_logits: Optional[torch.Tensor]  # [B, K] with steer_bins, else None
     clearance: torch.Tensor  # [B, clearance_rays] in [0, 1] ([B, 0] without the head)
+    depth: torch.Tensor  # [B, h', w'] nearest depth / 5 m per cell of the last conv map ([B, 0, 0] without)
 
 
 def steer_from_logits(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:

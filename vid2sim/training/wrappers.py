@@ -26,12 +26,16 @@ looks at, as privileged ranges (`envs/sensing.py`): K rays from the robot centre
 `RAY_HEIGHT` (`envs/sensing.py`) over the camera's horizontal field of view (left to right as seen), each the
 nearer of the collision-mesh / obstacle hit and the walkable map's edge, divided by
 `CLEARANCE_RANGE` m (saturating at 1). The pixel student may learn to predict it (an auxiliary target).
+With `depth_grid` = (h, w) it adds `info["teacher_depth"]` uint8 [h, w]: the latest frame's depth
+(obstacles and pedestrians included) as the nearest depth in each of h x w equal blocks of the
+image, / `DEPTH_RANGE` m (saturating at 255): what the camera shows and how near, a dense auxiliary
+target for the student's encoder (`depth_blocks`).
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, Optional
 
 import gymnasium as gym
 import numpy as np
@@ -75,10 +79,29 @@ class TeacherError(RuntimeError):
     """The teacher cannot act in this env (no A* expert path: not a vid2sim NavEnv)."""
 
 
+DEPTH_RANGE = 5.0  # m: the depth target saturates here (what is farther cannot be hit within 5 s)
+
+
+def check_depth_grid(grid: tuple[int, int], image: tuple[int, int]) -> None:
+    """ValueError unless the h x w grid divides the image [H, W] into equal blocks."""
+    (h, w), (height, width) = grid, image
+    if h < 1 or w < 1 or height % h or width % w:
+        raise ValueError(f"depth_grid {h} x {w} must divide the {height} x {width} image into equal blocks")
+
+
+def depth_blocks(depth: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
+    """Depth [H, W] in m (inf: nothing) -> uint8 [h, w]: each block's nearest depth / DEPTH_RANGE x 255."""
+    h, w = grid
+    H, W = depth.shape
+    near = np.nan_to_num(depth, nan=np.inf).reshape(h, H // h, w, W // w).min(axis=(1, 3))  # [h, w]
+    return np.round(np.clip(near / DEPTH_RANGE, 0.0, 1.0) * 255.0).astype(np.uint8)
+
+
 class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
-    def __init__(self, env: gym.Env, replan_distance: float = 0.3, clearance_rays: int = 0) -> None:
+    def __init__(self, env: gym.Env, replan_distance: float = 0.3, clearance_rays: int = 0,
+                 depth_grid: Optional[tuple[int, int]] = None) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
             raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
@@ -93,6 +116,10 @@ class TeacherLabels(gym.Wrapper):
             cam = env.unwrapped.config.camera
             # image columns run left to right, angles right to left (yaw is counter-clockwise)
             self.clearance_angles = ray_angles(clearance_rays, camera_hfov_deg(cam.width, cam.focal))[::-1].copy()
+        self.depth_grid = tuple(depth_grid) if depth_grid else None
+        if self.depth_grid:
+            cam = env.unwrapped.config.camera
+            check_depth_grid(self.depth_grid, (cam.height, cam.width))
 
     def clearance(self) -> np.ndarray:
         """Privileged clearance over the camera's view [K] in [0, 1] (see the module docs)."""
@@ -117,6 +144,8 @@ class TeacherLabels(gym.Wrapper):
         label = {**info, "teacher_action": action, "teacher_stuck": self.expert.stuck > 0}
         if self.clearance_angles is not None:
             label["teacher_clearance"] = self.clearance()
+        if self.depth_grid:
+            label["teacher_depth"] = depth_blocks(self.env.unwrapped.last_depth, self.depth_grid)
         return label
 
     def reset(self, **kwargs: Any):
