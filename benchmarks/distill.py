@@ -62,7 +62,7 @@ def distill_config(args) -> DistillConfig:
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
-                   depth_weight=args.depth_weight, student=student)
+                   depth_weight=args.depth_weight, ema_decay=args.ema_decay, student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -246,6 +246,8 @@ def main() -> None:
                     help="student: auxiliary head predicting the frame's nearest depth per cell of its last conv map")
     ap.add_argument("--depth-weight", type=float, default=DistillConfig.depth_weight,
                     help="weight of the auxiliary depth loss (with --depth-target)")
+    ap.add_argument("--ema-decay", type=float, default=DistillConfig.ema_decay,
+                    help="exponential moving average of the student's weights per learner step (0: off)")
     ap.add_argument("--fidelity", default="exact", choices=["exact", "fast"], help="training render fidelity")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--trials", type=int, default=25)

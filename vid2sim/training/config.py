@@ -68,6 +68,9 @@ class DistillConfig:
     # weight of the auxiliary depth loss (MSE to the frame's nearest depth per cell, / 5 m) when the student has
     # a depth head (student.depth_target)
     depth_weight: float = 1.0
+    # exponential moving average of the student's weights per learner step (0: off, the last weights are the
+    # student); with it the average drives the student's episodes and is the final student
+    ema_decay: float = 0.0
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike

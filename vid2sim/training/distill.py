@@ -23,6 +23,9 @@ does, in order:
      target that asks the encoder to see how far away what it faces is (`clearance_weight`);
   5. write the round's data shard (data/round_K.npz, written once) and checkpoints/last.pt (student,
      optimizer, round, history), log to TensorBoard (tb/) and to the returned history.
+With `ema_decay` > 0 an exponential moving average of the student's weights (updated after every
+learner step) drives the student's episodes and is the final student: the last weights of a round
+move with its batches, the average does not.
 Resume (`resume=True`) reloads the shards and checkpoints/last.pt and goes on at the next round.
 The final student is RUN/student.pt; `vid2sim eval policy --policy RUN` and `export_policy` read it.
 
@@ -43,6 +46,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 from stable_baselines3.common.vec_env import VecEnv
+from torch.optim.swa_utils import AveragedModel
 from torch.utils.tensorboard import SummaryWriter
 
 from vid2sim.training.config import EVICTIONS, DistillConfig, TrainConfig
@@ -300,13 +304,16 @@ def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: flo
 
 def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
         batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0,
-        steer_weight: float = 0.0, depth_weight: float = 0.0) -> dict[str, float]:
+        steer_weight: float = 0.0, depth_weight: float = 0.0,
+        averaged: Optional[AveragedModel] = None) -> dict[str, float]:
     """`updates` AdamW steps of `action_loss` to the teacher's labels on random-shifted batches drawn
     uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
     head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`, and
     one with a depth head the frame's blocked depth (`depth_loss`), weighted by `depth_weight`.
-    `steer_weight`: see `action_loss`. Returns the mean squared error of the actions to the labels
-    (whatever the steering head) and the auxiliary losses, over the last tenth of the updates."""
+    `steer_weight`: see `action_loss`. `averaged` (an exponential moving average of the student's
+    weights, `DistillConfig.ema_decay`) is updated after every step. Returns the mean squared error
+    of the actions to the labels (whatever the steering head) and the auxiliary losses, over the last
+    tenth of the updates."""
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
     aux = student.clearance_head is not None and clearance_weight > 0
@@ -335,6 +342,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
+        if averaged is not None:
+            averaged.update_parameters(student)
     student.eval()
     wall, tail = time.perf_counter() - t0, max(1, updates // 10)
     out = {"loss": float(np.mean(losses[-tail:])), "fit_s": wall,
@@ -385,10 +394,35 @@ def make_optimizer(student: StudentPolicy, d: DistillConfig, state: Optional[dic
     return optimizer
 
 
+def ema_decay_at(decay: float, n_averaged: int) -> float:
+    """The average's decay after `n_averaged` updates: min(decay, (1 + n) / (10 + n)), so it follows the
+    young student closely (no lag behind the first rounds' weights) and averages over ~1 / (1 - decay)
+    learner steps once trained (the warm-up of TensorFlow's ExponentialMovingAverage)."""
+    return min(decay, (1.0 + n_averaged) / (10.0 + n_averaged))
+
+
+def make_averaged(student: StudentPolicy, decay: float, state: Optional[dict] = None) -> Optional[AveragedModel]:
+    """The exponential moving average of the student's weights (None when `decay` is 0): it drives the
+    student's episodes and is the run's final student; `state`: a checkpoint's."""
+    if decay <= 0:
+        return None
+
+    def average(mean: torch.Tensor, current: torch.Tensor, n_averaged: torch.Tensor) -> torch.Tensor:
+        d = ema_decay_at(decay, int(n_averaged))
+        return d * mean + (1.0 - d) * current
+
+    averaged = AveragedModel(student, avg_fn=average, use_buffers=True)
+    if state is not None:
+        averaged.load_state_dict(state)
+    return averaged.eval()
+
+
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
-                    num_timesteps: int, history: list[dict], rng: np.random.Generator) -> None:
+                    num_timesteps: int, history: list[dict], rng: np.random.Generator,
+                    averaged: Optional[AveragedModel] = None) -> None:
     ckpt = {"student": student.checkpoint(), "optimizer": optimizer.state_dict(), "round": round_index,
-            "num_timesteps": num_timesteps, "history": history, "rng": rng.bit_generator.state}
+            "num_timesteps": num_timesteps, "history": history, "rng": rng.bit_generator.state,
+            "averaged": averaged.state_dict() if averaged is not None else None}
     tmp = run / "checkpoints" / "last.pt.tmp"
     torch.save(ckpt, tmp)
     tmp.replace(run / "checkpoints" / "last.pt")
@@ -417,17 +451,20 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
                                                       "image_shape": list(student.image_shape),
                                                       "vector_shape": list(student.vector_shape)}, indent=2))
         optimizer = make_optimizer(student, d)
+        averaged = make_averaged(student, d.ema_decay)
         rng = np.random.default_rng(config.seed)
         dataset, history, start, done = Dataset(d.max_samples, d.eviction), [], 0, 0
         if resume:
             ckpt = load_checkpoint(run)
             student.load_state_dict(ckpt["student"]["state_dict"])
             optimizer = make_optimizer(student, d, ckpt["optimizer"])
+            averaged = make_averaged(student, d.ema_decay, ckpt.get("averaged"))
             rng.bit_generator.state = ckpt["rng"]
             start, done, history = ckpt["round"] + 1, ckpt["num_timesteps"], ckpt["history"]
             for k in range(start):
                 dataset.add(Batch.load(run / "data" / f"round_{k:03d}.npz"))
-        collector = Collector(env, student, config.seed + 7919 * start)
+        driver = averaged.module if averaged is not None else student  # who drives the student's episodes
+        collector = Collector(env, driver, config.seed + 7919 * start)
         rounds = max(1, math.ceil(config.total_steps / d.steps_per_round))
         t_start = time.perf_counter()
         for k in range(start, rounds):
@@ -437,7 +474,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             dataset.add(batch)
             done += stats.steps
             fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng,
-                         d.clearance_weight, d.steer_weight, d.depth_weight)
+                         d.clearance_weight, d.steer_weight, d.depth_weight, averaged)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
@@ -447,10 +484,10 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
                 if key != "round" and value is not None:
                     writer.add_scalar(f"distill/{key}", value, done)
             writer.flush()
-            save_checkpoint(run, student, optimizer, k, done, history, rng)
+            save_checkpoint(run, student, optimizer, k, done, history, rng, averaged)
             if log:
                 log(row)
-        student.save(run / STUDENT_NAME)
+        driver.save(run / STUDENT_NAME)
         return TrainResult(run, done, history, time.perf_counter() - t_start)
     finally:
         writer.close()
