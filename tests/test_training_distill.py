@@ -14,8 +14,8 @@ import torch
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.training.config import DistillConfig, TrainConfig
-from vid2sim.training.distill import (DEPTH_GRID, STUDENT_NAME, Batch, Dataset, DistillError, action_loss, env_specs,
-                                      fit, make_optimizer, scene_groups, train_distill)
+from vid2sim.training.distill import (DEPTH_GRID, STUDENT_NAME, Batch, Dataset, DistillError, action_loss,
+                                      ema_decay_at, env_specs, fit, make_optimizer, scene_groups, train_distill)
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
@@ -334,6 +334,29 @@ def test_the_depth_target_is_collected_learnt_and_left_out_of_the_export(street_
         trained = load_student(tmp_path / "run" / STUDENT_NAME)
         expected = trained(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
     np.testing.assert_allclose(NavPolicy(out, "onnx").act_stacked(image, vector), expected, atol=1e-5)
+
+
+def test_ema_decay_warms_up_then_holds():
+    assert ema_decay_at(0.999, 0) == pytest.approx(0.1)  # the first update nearly copies the student
+    assert ema_decay_at(0.999, 400) == pytest.approx(401 / 410)
+    assert ema_decay_at(0.999, 100_000) == 0.999
+
+
+def test_the_weight_average_is_the_final_student_and_resumes(street_registry, tmp_path):
+    config = tiny_config(street_registry, tmp_path / "run", 120)
+    config.distill.ema_decay = 0.9
+    train_distill(config)
+    ckpt = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+    final = torch.load(tmp_path / "run" / STUDENT_NAME, map_location="cpu", weights_only=False)["state_dict"]
+    live = ckpt["student"]["state_dict"]
+    averaged = {k[len("module."):]: v for k, v in ckpt["averaged"].items() if k.startswith("module.")}
+    assert int(ckpt["averaged"]["n_averaged"]) == 2 * config.distill.updates_per_round
+    assert all(torch.equal(final[k], averaged[k]) for k in final)  # student.pt is the average ...
+    assert any(not torch.equal(final[k], live[k]) for k in final)  # ... not the last weights
+    config.total_steps = 180
+    resumed = train_distill(config, resume=True)
+    ckpt = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+    assert resumed.num_timesteps == 180 and int(ckpt["averaged"]["n_averaged"]) == 3 * config.distill.updates_per_round
 
 
 def test_steer_weight_counts_hard_turns_more():
