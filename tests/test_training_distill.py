@@ -271,22 +271,37 @@ def test_weight_decay_comes_from_the_config_also_over_an_old_adam_state():
     assert torch.allclose(weight.detach(), before * (1 - 1e-2 * 0.5), atol=1e-7)
 
 
-def test_the_clearance_target_is_collected_learnt_and_left_out_of_the_export(street_registry, tmp_path):
-    config = tiny_config(street_registry, tmp_path / "run", 60)
-    config.distill.student = StudentConfig(**{**TINY.to_dict(), "clearance_rays": 5})
-    result = train_distill(config)
-    shard = Batch.load(tmp_path / "run" / "data" / "round_000.npz")
+def check_shard_clearance(shard: Batch) -> None:
     assert shard.clearance.shape == (len(shard.actions), 5) and shard.clearance.dtype == np.float32
     assert 0.0 < shard.clearance.min() and shard.clearance.max() <= 1.0
-    assert "clearance_loss" in result.history[0]
+
+
+def check_shard_depth(shard: Batch) -> None:
+    assert shard.depth.shape == (len(shard.actions), *DEPTH_GRID) and shard.depth.dtype == np.uint8
+    assert shard.depth.min() < 200 and (shard.depth < 255).mean() > 0.3  # the street is in view, near enough
+
+
+@pytest.mark.parametrize("target, student_field, weight, check_shard, falls_to", [
+    ("clearance", {"clearance_rays": 5}, "clearance_weight", check_shard_clearance, 0.5),
+    ("depth", {"depth_target": True}, "depth_weight", check_shard_depth, 0.7),  # measured: about 0.06 -> 0.03
+])
+def test_an_auxiliary_target_is_collected_learnt_and_left_out_of_the_export(
+        street_registry, tmp_path, target, student_field, weight, check_shard, falls_to):
+    config = tiny_config(street_registry, tmp_path / "run", 60)
+    config.distill.student = StudentConfig(**{**TINY.to_dict(), **student_field})
+    result = train_distill(config)
+    shard = Batch.load(tmp_path / "run" / "data" / "round_000.npz")
+    check_shard(shard)
+    assert f"{target}_loss" in result.history[0]
     student = load_student(tmp_path / "run" / STUDENT_NAME)
     optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3))
     rng = np.random.default_rng(0)
-    before = fit(student, optimizer, shard, 1, 32, 0, rng, clearance_weight=1.0)["clearance_loss"]
-    after = fit(student, optimizer, shard, 150, 32, 0, rng, clearance_weight=1.0)["clearance_loss"]
-    assert after < 0.5 * before
-    with pytest.raises(DistillError, match="clearance_mismatch"):
-        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]), 1, 4, 0, rng, 1.0)
+    before = fit(student, optimizer, shard, 1, 32, 0, rng, **{weight: 1.0})[f"{target}_loss"]
+    after = fit(student, optimizer, shard, 150, 32, 0, rng, **{weight: 1.0})[f"{target}_loss"]
+    assert after < falls_to * before  # the head learns the target
+    with pytest.raises(DistillError, match=f"{target}_mismatch"):  # rounds collected without the target
+        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]), 1, 4, 0, rng,
+            **{weight: 1.0})
     out = export_policy(tmp_path / "run", tmp_path / "export")  # the graph is the action head alone
     image = np.random.default_rng(1).integers(0, 256, (2, 6, 3, 72, 128), dtype=np.uint8)
     vector = np.zeros((2, 6, 2), np.float32)
@@ -308,32 +323,6 @@ def test_depth_blocks_keep_each_blocks_nearest_depth():
     assert (np.delete(blocks.ravel(), 5 * 16 + 1) == 255).all()
     with pytest.raises(ValueError, match="equal blocks"):
         check_depth_grid((7, 16), (72, 128))
-
-
-def test_the_depth_target_is_collected_learnt_and_left_out_of_the_export(street_registry, tmp_path):
-    config = tiny_config(street_registry, tmp_path / "run", 60)
-    config.distill.student = StudentConfig(**{**TINY.to_dict(), "depth_target": True})
-    result = train_distill(config)
-    shard = Batch.load(tmp_path / "run" / "data" / "round_000.npz")
-    assert shard.depth.shape == (len(shard.actions), *DEPTH_GRID) and shard.depth.dtype == np.uint8
-    assert shard.depth.min() < 200 and (shard.depth < 255).mean() > 0.3  # the street is in view, near enough
-    assert "depth_loss" in result.history[0]
-    student = load_student(tmp_path / "run" / STUDENT_NAME)
-    optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3))
-    rng = np.random.default_rng(0)
-    before = fit(student, optimizer, shard, 1, 32, 0, rng, depth_weight=1.0)["depth_loss"]
-    after = fit(student, optimizer, shard, 150, 32, 0, rng, depth_weight=1.0)["depth_loss"]
-    assert after < 0.7 * before  # the head learns the target (measured: about 0.06 -> 0.03)
-    with pytest.raises(DistillError, match="depth_mismatch"):
-        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]), 1, 4, 0, rng,
-            depth_weight=1.0)
-    out = export_policy(tmp_path / "run", tmp_path / "export")  # the graph is the action head alone
-    image = np.random.default_rng(1).integers(0, 256, (2, 6, 3, 72, 128), dtype=np.uint8)
-    vector = np.zeros((2, 6, 2), np.float32)
-    with torch.no_grad():
-        trained = load_student(tmp_path / "run" / STUDENT_NAME)
-        expected = trained(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
-    np.testing.assert_allclose(NavPolicy(out, "onnx").act_stacked(image, vector), expected, atol=1e-5)
 
 
 def test_ema_decay_warms_up_then_holds():
