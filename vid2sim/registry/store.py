@@ -645,6 +645,7 @@ class Registry:
         if out.exists() and not out.is_dir():
             raise RegistryError(f"{out}: checkout destination is a file, not a folder")
         marker = out / CHECKOUT_MARKER
+        done: Optional[dict] = None  # what the folder's marker says it holds
         if marker.is_file():
             try:
                 done = json.loads(marker.read_text())
@@ -655,7 +656,7 @@ class Registry:
                 return out
         if out.exists() and any(out.iterdir()):
             raise RegistryError(f"{out}: checkout destination exists and holds something else"
-                                f"{_checkout_owner(done if marker.is_file() else None, rec, self.root)}")
+                                f"{_checkout_owner(done, rec, self.root)}")
         out.parent.mkdir(parents=True, exist_ok=True)
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
         try:

@@ -41,6 +41,7 @@ import gymnasium as gym
 import numpy as np
 
 from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.sensing import RAY_HEIGHT, camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
 
 STUCK = "stuck"
@@ -94,7 +95,7 @@ def depth_blocks(depth: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
     h, w = grid
     H, W = depth.shape
     near = np.nan_to_num(depth, nan=np.inf).reshape(h, H // h, w, W // w).min(axis=(1, 3))  # [h, w]
-    return np.round(np.clip(near / DEPTH_RANGE, 0.0, 1.0) * 255.0).astype(np.uint8)
+    return depth_to_u8(near, DEPTH_RANGE)
 
 
 class TeacherLabels(gym.Wrapper):
@@ -112,13 +113,12 @@ class TeacherLabels(gym.Wrapper):
         self.replan_distance = replan_distance
         self.replans = 0
         self.clearance_angles = None
+        cam = env.unwrapped.config.camera
         if clearance_rays:
-            cam = env.unwrapped.config.camera
             # image columns run left to right, angles right to left (yaw is counter-clockwise)
             self.clearance_angles = ray_angles(clearance_rays, camera_hfov_deg(cam.width, cam.focal))[::-1].copy()
         self.depth_grid = tuple(depth_grid) if depth_grid else None
         if self.depth_grid:
-            cam = env.unwrapped.config.camera
             check_depth_grid(self.depth_grid, (cam.height, cam.width))
 
     def clearance(self) -> np.ndarray:
