@@ -99,8 +99,10 @@ def train_or_reuse(config: TrainConfig, **extra) -> dict:
 
 
 def camera_kwargs(args) -> dict:
-    """The robot camera's override (--camera-vfov), {} for the robot's own camera."""
-    return {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
+    """The training envs' camera overrides: the robot camera's field of view (--camera-vfov) and the
+    image augmentation switched off (--no-augment); {} for the defaults."""
+    kwargs = {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
+    return {**kwargs, "augment": {"enabled": False}} if args.no_augment else kwargs
 
 
 def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
@@ -240,6 +242,8 @@ def main() -> None:
                     help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
                     help="weight of the auxiliary clearance loss")
+    ap.add_argument("--no-augment", action="store_true",
+                    help="train without the envs' per-episode image augmentation (exposure, tint, fog, rain, snow)")
     ap.add_argument("--camera-vfov", type=float, default=0.0,
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--depth-target", action="store_true",

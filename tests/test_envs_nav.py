@@ -249,6 +249,20 @@ def test_comfortable_expert_route_leaves_spl_reference_alone(registry):
         assert all(c.actors.route_planner.is_free(x, y) for x, y in c.expert_path())
 
 
+def test_nested_override_builds_a_config_the_env_leaves_unset(registry):
+    """`augment={"enabled": False}` (a JSON-friendly override of a field that defaults to None)
+    builds the augmentation config from its defaults: a training env then renders the same first
+    frame as the evaluation env, and without it the augmentation changes that frame."""
+    clean = make(registry, training=True, jitter=False, fidelity="exact", augment={"enabled": False, "fog_prob": 0.0})
+    augmented = make(registry, training=True, jitter=False, fidelity="exact")
+    evaluation = make(registry, training=False)
+    assert not clean.unwrapped.config.augmentation.enabled
+    assert clean.unwrapped.config.augment.fog_prob == 0.0
+    frames = [env.reset(seed=3)[0]["image"][-1] for env in (clean, augmented, evaluation)]
+    np.testing.assert_array_equal(frames[0], frames[2])
+    assert np.abs(frames[1].astype(int) - frames[2].astype(int)).mean() > 1.0
+
+
 def test_expert_steers_off_arcs_that_leave_the_map(registry):
     """Facing the map's edge, the expert's steering keeps its checked arc on the walkable map."""
     env = make(registry, training=False)

@@ -32,9 +32,9 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict, deque
-from dataclasses import is_dataclass, replace
+from dataclasses import fields, is_dataclass, replace
 from pathlib import Path
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Optional, Sequence, Union, get_args, get_type_hints
 
 import gymnasium as gym
 import numpy as np
@@ -356,9 +356,24 @@ class NavEnv(gym.Env):
 
 def _with_overrides(conf: Any, overrides: dict[str, Any]) -> Any:
     """conf with fields replaced; a dict given for a nested config replaces fields of it (so a
-    JSON-saved run can set e.g. `episode={"expert_comfort": 0.8}`)."""
+    JSON-saved run can set e.g. `episode={"expert_comfort": 0.8}`), and builds that config from its
+    defaults where the field holds None (`augment={"enabled": False}`)."""
     if not overrides:
         return conf
-    nested = {k: _with_overrides(getattr(conf, k), v) for k, v in overrides.items()
-              if isinstance(v, dict) and is_dataclass(getattr(conf, k, None))}
+    nested = {k: _with_overrides(_nested_config(conf, k), v) for k, v in overrides.items()
+              if isinstance(v, dict) and _nested_config(conf, k) is not None}
     return replace(conf, **{**overrides, **nested})
+
+
+def _nested_config(conf: Any, name: str) -> Any:
+    """The dataclass config held by field `name` of `conf` (its type's defaults where it holds None),
+    else None."""
+    value = getattr(conf, name, None)
+    if is_dataclass(value):
+        return value
+    if value is None and name in {f.name for f in fields(conf)}:
+        hint = get_type_hints(type(conf)).get(name)
+        kinds = [t for t in get_args(hint) if is_dataclass(t)] if get_args(hint) else [hint]
+        if kinds and isinstance(kinds[0], type) and is_dataclass(kinds[0]):
+            return kinds[0]()
+    return None
