@@ -56,6 +56,7 @@ def registry(args) -> str:
 
 def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
+                            channels=tuple(args.channels),
                             clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
                             depth_target=args.depth_target)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
@@ -225,6 +226,8 @@ def main() -> None:
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--frames", type=int, default=2, help="student: stacked frames it sees")
     ap.add_argument("--pool", type=int, default=StudentConfig.pool, help="student: pooling of the 72 x 128 frames")
+    ap.add_argument("--channels", type=int, nargs=4, default=list(StudentConfig.channels), metavar="C",
+                    help="student: the four conv widths of its frame encoder")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
     ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,

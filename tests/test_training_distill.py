@@ -40,6 +40,11 @@ def tiny_config(registry, run_dir, total_steps: int, n_actors: int = 0) -> Train
                                              train_max_steps=40, student=TINY))
 
 
+def fit_conf(updates: int, batch_size: int, **weights: float) -> DistillConfig:
+    """The learner settings `fit` reads: `updates` steps of `batch_size`, no random shift."""
+    return DistillConfig(updates_per_round=updates, batch_size=batch_size, shift_pad=0, **weights)
+
+
 @pytest.fixture(scope="module")
 def distilled(street_registry, tmp_path_factory):
     run = tmp_path_factory.mktemp("distill") / "run"
@@ -296,12 +301,12 @@ def test_an_auxiliary_target_is_collected_learnt_and_left_out_of_the_export(
     student = load_student(tmp_path / "run" / STUDENT_NAME)
     optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3))
     rng = np.random.default_rng(0)
-    before = fit(student, optimizer, shard, 1, 32, 0, rng, **{weight: 1.0})[f"{target}_loss"]
-    after = fit(student, optimizer, shard, 150, 32, 0, rng, **{weight: 1.0})[f"{target}_loss"]
+    before = fit(student, optimizer, shard, fit_conf(1, 32, **{weight: 1.0}), rng)[f"{target}_loss"]
+    after = fit(student, optimizer, shard, fit_conf(150, 32, **{weight: 1.0}), rng)[f"{target}_loss"]
     assert after < falls_to * before  # the head learns the target
     with pytest.raises(DistillError, match=f"{target}_mismatch"):  # rounds collected without the target
-        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]), 1, 4, 0, rng,
-            **{weight: 1.0})
+        fit(student, optimizer, Batch(shard.frames[:4], shard.vectors[:4], shard.actions[:4]),
+            fit_conf(1, 4, **{weight: 1.0}), rng)
     out = export_policy(tmp_path / "run", tmp_path / "export")  # the graph is the action head alone
     image = np.random.default_rng(1).integers(0, 256, (2, 6, 3, 72, 128), dtype=np.uint8)
     vector = np.zeros((2, 6, 2), np.float32)
@@ -386,7 +391,7 @@ def test_steering_bins_learn_a_turn_that_regression_averages_away(tmp_path):
         torch.manual_seed(0)
         student = StudentPolicy(StudentConfig(**{**TINY.to_dict(), "steer_bins": bins}), (6, 3, 72, 128), (6, 2))
         optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3, weight_decay=0.0))
-        fit(student, optimizer, data, 200, 64, 0, np.random.default_rng(1))
+        fit(student, optimizer, data, fit_conf(200, 64), np.random.default_rng(1))
         with torch.no_grad():
             learnt[bins] = student.act(torch.from_numpy(frames[:1]).float(), torch.zeros(1, 6, 2))[0].numpy()
     assert abs(learnt[0][1] - 0.18) < 0.15  # the average of the two turns

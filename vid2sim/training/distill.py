@@ -302,30 +302,30 @@ def action_loss(predicted: torch.Tensor, labels: torch.Tensor, steer_weight: flo
     return (weights * per_sample).sum() / weights.sum()
 
 
-def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch], updates: int,
-        batch_size: int, shift_pad: int, rng: np.random.Generator, clearance_weight: float = 0.0,
-        steer_weight: float = 0.0, depth_weight: float = 0.0,
-        averaged: Optional[AveragedModel] = None) -> dict[str, float]:
-    """`updates` AdamW steps of `action_loss` to the teacher's labels on random-shifted batches drawn
-    uniformly from `data` (a Dataset, sampled in place, or one Batch); a student with a clearance
-    head also regresses the teacher's clearance readings, that loss weighted by `clearance_weight`, and
-    one with a depth head the frame's blocked depth (`depth_loss`), weighted by `depth_weight`.
-    `steer_weight`: see `action_loss`. `averaged` (an exponential moving average of the student's
-    weights, `DistillConfig.ema_decay`) is updated after every step. Returns the mean squared error
-    of the actions to the labels (whatever the steering head) and the auxiliary losses, over the last
-    tenth of the updates."""
+def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Dataset, Batch],
+        conf: DistillConfig, rng: np.random.Generator, averaged: Optional[AveragedModel] = None) -> dict[str, float]:
+    """`conf.updates_per_round` AdamW steps of `action_loss` to the teacher's labels on batches of
+    `conf.batch_size`, random-shifted by `conf.shift_pad`, drawn uniformly from `data` (a Dataset,
+    sampled in place, or one Batch); a student with a clearance head also regresses the teacher's
+    clearance readings, that loss weighted by `conf.clearance_weight`, and one with a depth head the
+    frame's blocked depth (`depth_loss`), weighted by `conf.depth_weight`; `conf.steer_weight`: see
+    `action_loss`. `averaged` (an exponential moving average of the student's weights,
+    `conf.ema_decay`) is updated after every step. Returns the mean squared error of the actions to
+    the labels (whatever the steering head) and the auxiliary losses, over the last tenth of the
+    updates."""
+    updates, batch_size = conf.updates_per_round, conf.batch_size
     student.train()
     data = data if isinstance(data, Dataset) else _one_part(data)
-    aux = student.clearance_head is not None and clearance_weight > 0
-    with_depth = student.depth_head is not None and depth_weight > 0
+    aux = student.clearance_head is not None and conf.clearance_weight > 0
+    with_depth = student.depth_head is not None and conf.depth_weight > 0
     n, losses, aux_losses, depth_losses, t0 = data.rows(), [], [], [], time.perf_counter()
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
-        x = random_shift(torch.from_numpy(batch.frames).float(), shift_pad, gen)
+        x = random_shift(torch.from_numpy(batch.frames).float(), conf.shift_pad, gen)
         pred = student.outputs(x, torch.from_numpy(batch.vectors))
         labels = torch.from_numpy(batch.actions)
-        loss = action_loss(pred.actions, labels, steer_weight, pred.steer_logits)
+        loss = action_loss(pred.actions, labels, conf.steer_weight, pred.steer_logits)
         losses.append((pred.actions.detach() - labels).square().mean().item())  # comparable over heads
         clearance = pred.clearance
         if aux:
@@ -334,11 +334,11 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
                                    f"the data holds {batch.clearance.shape[1]}")
             aux_loss = F.mse_loss(clearance, torch.from_numpy(batch.clearance))
             aux_losses.append(aux_loss.item())
-            loss = loss + clearance_weight * aux_loss
+            loss = loss + conf.clearance_weight * aux_loss
         if with_depth:
             near = depth_loss(pred.depth, batch.depth)
             depth_losses.append(near.item())
-            loss = loss + depth_weight * near
+            loss = loss + conf.depth_weight * near
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -473,8 +473,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
-            fitted = fit(student, optimizer, dataset, d.updates_per_round, d.batch_size, d.shift_pad, rng,
-                         d.clearance_weight, d.steer_weight, d.depth_weight, averaged)
+            fitted = fit(student, optimizer, dataset, d, rng, averaged)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
                    "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
