@@ -30,12 +30,13 @@ import numpy as np
 
 from vid2sim.factory.sfm.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
 from vid2sim.factory.sfm.export import write_colmap, write_transforms
+from vid2sim.factory.sfm.undistort import undistort_project
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer, fresh_dir, input_key
 from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "sfm"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass(frozen=True)
@@ -70,7 +71,7 @@ class SfMConfig:
     camera_params: list[float] = field(default_factory=list)  # known intrinsics (COLMAP order)
     refine_intrinsics: Optional[bool] = None  # None: refine unless camera_params are given
     lens: LensHint = field(default_factory=LensHint)  # hints for camera_model="auto"
-    num_threads: int = 2  # COLMAP threads when deterministic is False
+    num_threads: int = 2  # COLMAP threads when deterministic is False; undistortion always uses them
     seed: int = 0  # COLMAP's random seed (RANSAC, mapper)
     # True: COLMAP runs on one thread, so the same frames give the same model bit for bit. With
     # more, image ids follow extraction completion order and each worker thread's RANSAC random
@@ -333,52 +334,14 @@ def fail(out_dir: Path, q: SfMQuality, reason: str, detail: str) -> StageError:
 
 # ----------------------------------------------------------------------------- outputs
 
-def undistort(out_dir: Path, images_dir: Path, masks: Optional[Path], rec: Any,
-              conf: SfMConfig) -> Path:
-    """Pinhole images + model in `undistorted/`, masks warped the same way."""
-    import pycolmap
-
-    und = out_dir / OUTPUTS.undistorted
-    pycolmap.undistort_images(str(und), str(out_dir / "sparse" / "0"), str(images_dir),
-                              output_type="COLMAP", num_threads=colmap_threads(conf))
-    for extra in ("stereo", "run-colmap-geometric.sh", "run-colmap-photometric.sh"):
-        p = und / extra
-        shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
-    if masks is not None:
-        und_rec = pycolmap.Reconstruction(str(und / "sparse"))
-        undistort_masks(rec, und_rec, masks, und / "masks")
-    return und
-
-
-def undistort_masks(rec: Any, und_rec: Any, masks: Path, out: Path) -> None:
-    """Warp each `<image>.png` mask from the lens camera into the undistorted pinhole camera."""
-    out.mkdir(parents=True, exist_ok=True)
-    src_cam = next(iter(rec.cameras.values()))
-    dst_cam = next(iter(und_rec.cameras.values()))
-    w, h = dst_cam.width, dst_cam.height
-    uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2).astype(np.float64)
-    xy = dst_cam.cam_from_img(uv)  # [H*W, 2] normalised
-    src = src_cam.img_from_cam(np.concatenate([xy, np.ones((len(xy), 1))], 1))  # [H*W, 2]
-    mx = src[:, 0].reshape(h, w).astype(np.float32)
-    my = src[:, 1].reshape(h, w).astype(np.float32)
-    for image in und_rec.images.values():
-        m = cv2.imread(str(masks / f"{image.name}.png"), cv2.IMREAD_GRAYSCALE)
-        if m is None:
-            continue
-        warped = cv2.remap(m, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT,
-                           borderValue=0)
-        cv2.imwrite(str(out / f"{image.name}.png"), warped)
-
-
 def write_outputs(out_dir: Path, images_dir: Path, masks: Optional[Path], rec: Any,
                   conf: SfMConfig) -> None:
-    import pycolmap
-
     write_colmap(rec, out_dir / "sparse" / "0")
     if not conf.undistort:
         return
-    und = undistort(out_dir, images_dir, masks, rec, conf)
-    und_rec = pycolmap.Reconstruction(str(und / "sparse"))
+    und = out_dir / OUTPUTS.undistorted
+    # each frame's remap is independent, so every thread may work even when deterministic
+    und_rec = undistort_project(rec, images_dir, masks, und, threads=conf.num_threads)
     mask_names = ({p.name[:-4] for p in (und / "masks").iterdir()}
                   if (und / "masks").is_dir() else set())
     write_transforms(und_rec, out_dir / "transforms.json", "undistorted/images",
