@@ -29,6 +29,7 @@ import cv2
 import numpy as np
 
 from vid2sim.factory.sfm.camera_model import CameraChoice, LensHint, choose_camera_model, exif_hint
+from vid2sim.factory.sfm.database import copy_in_name_order
 from vid2sim.factory.sfm.export import write_colmap, write_transforms
 from vid2sim.factory.sfm.undistort import undistort_project
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork, Timer, fresh_dir, input_key
@@ -71,13 +72,15 @@ class SfMConfig:
     camera_params: list[float] = field(default_factory=list)  # known intrinsics (COLMAP order)
     refine_intrinsics: Optional[bool] = None  # None: refine unless camera_params are given
     lens: LensHint = field(default_factory=LensHint)  # hints for camera_model="auto"
-    num_threads: int = 2  # COLMAP threads when deterministic is False; undistortion always uses them
+    # threads of feature extraction and undistortion (their output does not depend on it), and of
+    # COLMAP's matching and mapping when deterministic is False
+    num_threads: int = 2
     seed: int = 0  # COLMAP's random seed (RANSAC, mapper)
-    # True: COLMAP runs on one thread, so the same frames give the same model bit for bit. With
-    # more, image ids follow extraction completion order and each worker thread's RANSAC random
-    # state depends on which pairs it ran before (measured: 2 threads gave fx 428 / 434 px and
-    # 3.0k / 4.0k points on two runs of the GoPro clip; 1 thread identical). num_threads then
-    # only applies when this is False.
+    # True: COLMAP's matching and mapping run on one thread, so the same frames give the same model
+    # bit for bit. With more, each worker thread's RANSAC random state depends on which pairs it ran
+    # before (measured: 2 threads gave fx 428 / 434 px and 3.0k / 4.0k points on two runs of the
+    # GoPro clip; 1 thread identical). Extraction keeps a one-thread run's image ids
+    # (database.copy_in_name_order) and undistortion is per frame, so both use num_threads anyway.
     deterministic: bool = True
     undistort: bool = True  # also write pinhole images, masks and model in undistorted/ (recon reads them)
     min_frames: int = 10  # fewer input frames fails the stage (too_few_frames)
@@ -172,8 +175,15 @@ def colmap_threads(conf: SfMConfig) -> int:
 
 def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
             masks: Optional[Path], cam: CameraChoice) -> None:
+    """SIFT features of `names` into the new database `db`, on `conf.num_threads` threads whether or not
+    the run is deterministic: each frame's features do not depend on the thread count, only the ids
+    COLMAP hands out (completion order), so with more than one thread the features go to a scratch
+    database first and `copy_in_name_order` writes `db` with a one-thread run's ids."""
     import pycolmap
 
+    threads = max(1, conf.num_threads)
+    target = db if threads == 1 else db.with_name(db.stem + "-unordered.db")
+    target.unlink(missing_ok=True)
     ro = pycolmap.ImageReaderOptions()
     ro.camera_model = cam.model
     if cam.params:
@@ -182,13 +192,16 @@ def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
         ro.mask_path = str(masks)
     eo = pycolmap.FeatureExtractionOptions()
     eo.max_image_size = conf.max_image_size
-    eo.num_threads = colmap_threads(conf)
+    eo.num_threads = threads
     eo.use_gpu = False
     eo.sift.max_num_features = conf.max_num_features
     eo.sift.first_octave = conf.first_octave
-    pycolmap.extract_features(db, images_dir, image_names=names,
+    pycolmap.extract_features(target, images_dir, image_names=names,
                               camera_mode=pycolmap.CameraMode.SINGLE, reader_options=ro,
                               extraction_options=eo, device=pycolmap.Device.cpu)
+    if target != db:
+        copy_in_name_order(target, db, names)
+        target.unlink()
 
 
 def match(conf: SfMConfig, db: Path) -> None:
