@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 import time
 from collections import defaultdict, deque
-from dataclasses import fields, is_dataclass, replace
+from dataclasses import is_dataclass, replace
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union, get_args, get_type_hints
 
@@ -360,20 +360,16 @@ def _with_overrides(conf: Any, overrides: dict[str, Any]) -> Any:
     defaults where the field holds None (`augment={"enabled": False}`)."""
     if not overrides:
         return conf
-    nested = {k: _with_overrides(_nested_config(conf, k), v) for k, v in overrides.items()
-              if isinstance(v, dict) and _nested_config(conf, k) is not None}
+    nested = {k: _with_overrides(inner, v) for k, v in overrides.items()
+              if isinstance(v, dict) and (inner := _nested_config(conf, k)) is not None}
     return replace(conf, **{**overrides, **nested})
 
 
 def _nested_config(conf: Any, name: str) -> Any:
-    """The dataclass config held by field `name` of `conf` (its type's defaults where it holds None),
-    else None."""
+    """The dataclass config in field `name` of `conf` (its type's defaults where it holds None), else None."""
     value = getattr(conf, name, None)
-    if is_dataclass(value):
-        return value
-    if value is None and name in {f.name for f in fields(conf)}:
-        hint = get_type_hints(type(conf)).get(name)
-        kinds = [t for t in get_args(hint) if is_dataclass(t)] if get_args(hint) else [hint]
-        if kinds and isinstance(kinds[0], type) and is_dataclass(kinds[0]):
-            return kinds[0]()
-    return None
+    if value is not None:
+        return value if is_dataclass(value) else None
+    hint = get_type_hints(type(conf)).get(name)
+    kinds = [t for t in (get_args(hint) or (hint,)) if isinstance(t, type) and is_dataclass(t)]
+    return kinds[0]() if kinds else None
