@@ -63,7 +63,8 @@ def distill_config(args) -> DistillConfig:
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
-                   depth_weight=args.depth_weight, ema_decay=args.ema_decay, student=student)
+                   depth_weight=args.depth_weight, ema_decay=args.ema_decay, augment=args.augment,
+                   student=student)
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
@@ -100,10 +101,8 @@ def train_or_reuse(config: TrainConfig, **extra) -> dict:
 
 
 def camera_kwargs(args) -> dict:
-    """The training envs' camera overrides: the robot camera's field of view (--camera-vfov) and the
-    image augmentation switched off (--no-augment); {} for the defaults."""
-    kwargs = {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
-    return {**kwargs, "augment": {"enabled": False}} if args.no_augment else kwargs
+    """The robot camera's override (--camera-vfov), {} for the robot's own camera."""
+    return {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
 
 
 def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
@@ -245,8 +244,8 @@ def main() -> None:
                     help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
                     help="weight of the auxiliary clearance loss")
-    ap.add_argument("--no-augment", action="store_true",
-                    help="train without the envs' per-episode image augmentation (exposure, tint, fog, rain, snow)")
+    ap.add_argument("--augment", action=argparse.BooleanOptionalAction, default=DistillConfig.augment,
+                    help="the training envs' per-episode image augmentation (exposure, tint, fog, rain, snow)")
     ap.add_argument("--camera-vfov", type=float, default=0.0,
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--depth-target", action="store_true",

@@ -239,6 +239,23 @@ def test_dataset_gather_reads_rows_across_rounds_without_concatenating():
         empty.gather(np.zeros(1, np.int64))
 
 
+def test_training_envs_render_without_augmentation_unless_asked(tmp_path):
+    config = tiny_config("reg", tmp_path / "run", 100)
+    config.scene_ids = ["a", "b"]
+    assert not config.distill.augment
+    assert all(s.kwargs["augment"] == {"enabled": False} for s in env_specs(config))
+    config.distill.augment = True
+    assert env_specs(config)[0].kwargs["augment"] == {"enabled": True}
+    config.env_kwargs["augment"] = {"enabled": False, "fog_prob": 0.5}  # given: kept as given
+    assert env_specs(config)[0].kwargs["augment"] == {"enabled": False, "fog_prob": 0.5}
+    config.env_kwargs.pop("augment")
+    recorded = config.to_dict()
+    recorded["distill"].pop("augment")  # a run folder written before the field existed: augmented
+    assert TrainConfig.from_dict(recorded).distill.augment
+    config.distill.augment = False
+    assert not TrainConfig.from_dict(config.to_dict()).distill.augment
+
+
 def test_the_teachers_route_keeps_its_comfort_distance_unless_the_env_arguments_say_otherwise(tmp_path):
     config = tiny_config("reg", tmp_path / "run", 100)
     config.scene_ids = ["a", "b"]

@@ -207,6 +207,9 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     episode = base.get("episode", {})
     if config.distill.teacher_comfort > 0 and isinstance(episode, dict):  # env arguments given win
         base["episode"] = {"expert_comfort": config.distill.teacher_comfort, **episode}
+    augment = base.get("augment", {})
+    if isinstance(augment, dict):
+        base["augment"] = {"enabled": config.distill.augment, **augment}
     rays = config.distill.student.clearance_rays
     grid = DEPTH_GRID if config.distill.student.depth_target else None
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
