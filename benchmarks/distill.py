@@ -6,17 +6,18 @@
     python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 small rounds (smoke run)
 
 Scenes: synthetic-street ground-truth bundles whose layout, furniture and light differ by seed
-(`benchmarks/street_registry.py --vary`, `vid2sim.factory.synthetic.varied`); the registry's
-split (seed 0, 20 % of the streets) holds out whole streets. Training: `vid2sim train --method
-distill` (`training/distill.py`), in-process envs (so the process's CPU seconds are the whole
-cost), exact render fidelity (`--fidelity`; fast first fits a sim-ready set per street) with
-training augmentation. Evaluation: `vid2sim eval policy`'s protocol: 25 trials per held-out
-street (seeds 1000 + k), 0-5 static obstacles, exact render fidelity, no jitter or augmentation,
-a 600-step limit (`--eval-max-steps`, 0: the env's 3000; a robot pressed against geometry it
-cannot leave would otherwise cost 3000 steps per failure); SR, SPL and Cost with 95 % bootstrap
-intervals; `--socialnav` also evaluates the same students with 1-4 pedestrians (SR, SNS).
-`--ensemble K` also evaluates the students of every K consecutive seeds driving together
-(`training/ensemble.py`, the mean of their actions), whose training budget is the K runs' sum.
+(`benchmarks/street_registry.py --vary`, `vid2sim.factory.synthetic.varied`); the registry's split
+(seed 0, 20 % of the streets) holds out whole streets. Training: `vid2sim train --method distill`
+(`training/distill.py`), in-process envs (so the process's CPU seconds are the whole cost), exact
+render fidelity (`--fidelity`; fast first fits a sim-ready set per street), camera jitter on, the
+envs' image augmentation off unless `--augment` (`distill.augment`). Evaluation: `vid2sim eval
+policy`'s protocol: 25 trials per held-out street (seeds 1000 + k), 0-5 static obstacles, exact
+render fidelity, no jitter or augmentation, a 600-step limit (`--eval-max-steps`, 0: the env's 3000;
+a robot pressed against geometry it cannot leave would otherwise cost 3000 steps per failure); SR,
+SPL and Cost with 95 % bootstrap intervals; `--socialnav` also evaluates the same students with 1-4
+pedestrians (SR, SNS). `--ensemble K` also evaluates the students of every K consecutive seeds
+driving together (`training/ensemble.py`, the mean of their actions), whose training budget is the K
+runs' sum.
 Every figure states its budget (env steps, wall and CPU seconds).
 """
 
