@@ -6,8 +6,8 @@ Writes into `out` (the sfm stage's `undistorted/`):
   sparse/              the model with the pinhole camera COLMAP's undistorter chooses
                        (`pycolmap.undistort_camera`, default options) and every 2D point moved
                        into it; poses and 3D points unchanged
-  images/<image>       each registered frame remapped bilinearly, black outside the lens image
-                       (JPEG at quality 100 for .jpg frames)
+  images/<image>       each registered frame remapped bilinearly, black outside the lens image,
+                       in colour (JPEG at quality 100 for .jpg frames)
   masks/<image>.png    each mask remapped with nearest neighbour (outside: 0, ignored)
 Same camera and 2D points as `pycolmap.undistort_images` and the same pixel-centre convention; the
 pixels differ from COLMAP's by resampling (COLMAP first resizes the frame to the pinhole size, then
@@ -82,7 +82,8 @@ def undistort_project(rec: Any, images_dir: Path, masks_dir: Optional[Path], out
     names = sorted(image.name for image in pinhole_rec.images.values())
 
     def one(name: str) -> None:
-        frame = cv2.imread(str(Path(images_dir) / name), cv2.IMREAD_UNCHANGED)
+        # colour like COLMAP's undistorter writes, pixels as stored (as COLMAP read them for SIFT)
+        frame = cv2.imread(str(Path(images_dir) / name), cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)
         if frame is None:
             raise FileNotFoundError(f"{Path(images_dir) / name}: registered frame missing or unreadable")
         warped = cv2.remap(frame, grid_x, grid_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
