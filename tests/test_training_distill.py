@@ -239,7 +239,7 @@ def test_dataset_gather_reads_rows_across_rounds_without_concatenating():
         empty.gather(np.zeros(1, np.int64))
 
 
-def test_training_envs_render_without_augmentation_unless_asked(tmp_path):
+def test_training_envs_render_without_augmentation_unless_asked_and_old_runs_keep_theirs(tmp_path):
     config = tiny_config("reg", tmp_path / "run", 100)
     config.scene_ids = ["a", "b"]
     assert not config.distill.augment
@@ -250,8 +250,10 @@ def test_training_envs_render_without_augmentation_unless_asked(tmp_path):
     assert env_specs(config)[0].kwargs["augment"] == {"enabled": False, "fog_prob": 0.5}
     config.env_kwargs.pop("augment")
     recorded = config.to_dict()
-    recorded["distill"].pop("augment")  # a run folder written before the field existed: augmented
-    assert TrainConfig.from_dict(recorded).distill.augment
+    recorded["distill"].pop("augment")  # a run folder written before the fields existed: augmented,
+    recorded["distill"].pop("ema_decay")  # the last weights
+    old = TrainConfig.from_dict(recorded).distill
+    assert old.augment and old.ema_decay == 0.0 and config.distill.ema_decay == 0.999
     config.distill.augment = False
     assert not TrainConfig.from_dict(config.to_dict()).distill.augment
 

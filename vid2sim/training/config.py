@@ -69,8 +69,9 @@ class DistillConfig:
     # a depth head (student.depth_target)
     depth_weight: float = 1.0
     # exponential moving average of the student's weights per learner step (0: off, the last weights are the
-    # student); with it the average drives the student's episodes and is the final student
-    ema_decay: float = 0.0
+    # student); with it the average drives the student's episodes and is the final student. 0.999: held-out
+    # SR 0.75 against 0.70 without, 3 seeds, un-augmented envs (docs/studies/pixel_distillation.md)
+    ema_decay: float = 0.999
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
@@ -134,10 +135,11 @@ class TrainConfig:
         if "net_arch" in sac:
             sac["net_arch"] = tuple(sac["net_arch"])
         distill = dict(d.pop("distill", {}))
-        if distill:  # runs recorded before these settings: the shortest route, plain Adam, augmented images
-            distill.setdefault("teacher_comfort", 0.0)
+        if distill:  # runs recorded before these settings: the shortest route, plain Adam, augmented images,
+            distill.setdefault("teacher_comfort", 0.0)  # the last weights
             distill.setdefault("weight_decay", 0.0)
             distill.setdefault("augment", True)
+            distill.setdefault("ema_decay", 0.0)
         return cls(**d, sac=SACConfig(**sac), distill=DistillConfig(**distill))
 
     def save(self, path: Path) -> None:
