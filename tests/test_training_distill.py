@@ -217,6 +217,24 @@ def test_resume_refuses_other_options_and_missing_runs(distilled, tmp_path):
     assert result.exit_code == 2 and "not a run folder" in result.output and not missing.exists()
 
 
+def test_a_copied_run_resumes_in_its_new_folder(distilled, street_registry, tmp_path):
+    import shutil
+
+    from typer.testing import CliRunner
+
+    from vid2sim.cli.app import app
+    run, _ = distilled
+    copy = tmp_path / "copy"
+    shutil.copytree(run, copy)
+    before = (run / "checkpoints" / "last.pt").read_bytes()
+    result = CliRunner().invoke(app, ["train", "--registry", str(street_registry), "--run", str(copy), "--resume",
+                                      "--steps", "180"])
+    assert result.exit_code == 0, result.output
+    assert torch.load(copy / "checkpoints" / "last.pt", weights_only=False)["num_timesteps"] == 180
+    assert (run / "checkpoints" / "last.pt").read_bytes() == before  # the original is left alone
+    assert json.loads((copy / "config.json").read_text())["run_dir"] == str(copy)
+
+
 def test_dataset_gather_reads_rows_across_rounds_without_concatenating():
     def batch(n, value):
         return Batch(np.full((n, 1, 1, 2, 2), value, np.uint8), np.full((n, 6, 2), value, np.float32),

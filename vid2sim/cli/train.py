@@ -66,11 +66,13 @@ def _method(method: str) -> str:
 
 
 def _resumed_config(run_dir: str, steps: Optional[int]) -> TrainConfig:
-    """A resumed run keeps its recorded config; only the step budget may grow."""
+    """A resumed run keeps its recorded config; only the step budget may grow. It goes on in the folder
+    named by --run, also when that folder was copied or moved since it was recorded."""
     path = Path(run_dir) / "config.json"
     if not path.is_file():
         raise typer.BadParameter(f"cannot resume {run_dir}: {path} does not exist (not a run folder)")
     config = TrainConfig.load(path)
+    config.run_dir = str(run_dir)
     if steps is not None:
         config.total_steps = steps
     return config
