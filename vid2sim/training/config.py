@@ -135,8 +135,9 @@ class TrainConfig:
         if "net_arch" in sac:
             sac["net_arch"] = tuple(sac["net_arch"])
         distill = dict(d.pop("distill", {}))
-        if distill:  # runs recorded before these settings: the shortest route, plain Adam, augmented images,
-            distill.setdefault("teacher_comfort", 0.0)  # the last weights
+        # runs recorded before these settings: the shortest route, plain Adam, augmented images, the last weights
+        if distill:
+            distill.setdefault("teacher_comfort", 0.0)
             distill.setdefault("weight_decay", 0.0)
             distill.setdefault("augment", True)
             distill.setdefault("ema_decay", 0.0)
