@@ -1,4 +1,4 @@
-"""Feature extraction and matching on several threads give the database of a one-thread run, row for row."""
+"""Feature extraction on several threads gives the database of a one-thread run, row for row."""
 
 from __future__ import annotations
 
@@ -36,7 +36,7 @@ def tables(db: Path) -> dict[str, str]:
         con.close()
 
 
-def test_two_threads_extract_and_match_as_one(tmp_path):
+def test_two_threads_extract_as_one(tmp_path):
     names = frames(tmp_path / "frames")
     dbs = {}
     for threads in (1, 2):
@@ -44,15 +44,10 @@ def test_two_threads_extract_and_match_as_one(tmp_path):
         cam = sfm.choose_camera(conf, tmp_path / "frames", names[0])
         dbs[threads] = tmp_path / f"t{threads}.db"
         sfm.extract(conf, dbs[threads], tmp_path / "frames", names, None, cam)
-        sfm.match(conf, dbs[threads])
     assert not (tmp_path / "t2-unordered.db").exists()
     one, two = tables(dbs[1]), tables(dbs[2])
-    assert set(one) >= {"images", "frames", "frame_data", "keypoints", "descriptors", "cameras", "matches",
-                        "two_view_geometries"}
+    assert set(one) >= {"images", "frames", "frame_data", "keypoints", "descriptors", "cameras"}
     assert one == two
-    con = sqlite3.connect(str(dbs[2]))
-    assert con.execute("select count(*) from two_view_geometries where rows > 15").fetchone()[0] >= len(names) - 1
-    con.close()
     con = sqlite3.connect(str(dbs[2]))
     assert [name for (name,) in con.execute("select name from images order by image_id")] == names
     assert min(rows for (rows,) in con.execute("select rows from keypoints")) > 50  # the frames have features

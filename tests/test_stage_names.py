@@ -48,6 +48,7 @@ ALLOWED_BY = [
     ("vid2sim/factory/synthetic/render.py", ("walkable",), "a key of the ground truth's file list"),
     ("vid2sim/viewer/scene_view.py", ("walkable",), "a node of the viewer's scene graph (/scene/walkable)"),
     ("vid2sim/factory/sfm/sfm.py", ("masks",), "the undistorted COLMAP project's masks/ (sfm's own layout)"),
+    ("vid2sim/factory/sfm/undistort.py", ("masks",), "the undistorted COLMAP project's masks/ (sfm's own layout)"),
     ("vid2sim/factory/sfm/metric.py", ("masks",), "the sfm folder's undistorted/masks, not the masks stage's"),
     ("vid2sim/factory/ingest/video_io.py", ("decode",),
      "the failure label of the video reader; decode.py imports it, so it cannot import decode.STAGE"),
