@@ -1,4 +1,4 @@
-"""COLMAP database helpers for the sfm stage.
+"""The sfm stage's feature database written in frame order, whatever the extraction's thread count.
 
 COLMAP's feature extractor on several threads computes the same features for each frame as on
 one, but hands out image, frame and pose-prior ids in the order the threads finish, so the mapper

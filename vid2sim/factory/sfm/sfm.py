@@ -207,7 +207,7 @@ def extract(conf: SfMConfig, db: Path, images_dir: Path, names: list[str],
 def match(conf: SfMConfig, db: Path) -> None:
     """Sequential matching and geometric verification into `db`, each pair's RANSAC seeded with
     `conf.seed`. On one thread when the run is deterministic: the descriptor matches themselves
-    differ between runs on two threads (measured on 16 KITTI frames under load)."""
+    differ between runs on two threads (16 KITTI frames: one run of four differed)."""
     import pycolmap
 
     mo = pycolmap.FeatureMatchingOptions()

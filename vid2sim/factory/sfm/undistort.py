@@ -46,16 +46,16 @@ def pinhole_model(rec: Any) -> Any:
         points = image.points2D  # edited in place
         if len(points) == 0:
             continue
-        xy = lens_to_pinhole(lens, pinhole, np.array([p.xy for p in points]))  # [P, 2]
+        xy = reproject(lens, pinhole, np.array([p.xy for p in points]))  # [P, 2]
         for point, moved in zip(points, xy):
             point.xy = moved
     return out
 
 
-def lens_to_pinhole(lens: Any, pinhole: Any, xy: np.ndarray) -> np.ndarray:
-    """Pixel positions [N, 2] of the lens camera -> the same rays' positions in the pinhole camera."""
-    rays = lens.cam_from_img(xy)  # [N, 2] normalised
-    return pinhole.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], 1))
+def reproject(source: Any, target: Any, xy: np.ndarray) -> np.ndarray:
+    """Pixel positions [N, 2] of camera `source` -> the same rays' positions in camera `target`."""
+    rays = source.cam_from_img(xy)  # [N, 2] normalised
+    return target.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], 1))
 
 
 def remap_grids(lens: Any, pinhole: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -63,8 +63,7 @@ def remap_grids(lens: Any, pinhole: Any) -> tuple[np.ndarray, np.ndarray]:
     position (cv2 convention: integer = pixel centre; COLMAP's: centre at +0.5)."""
     w, h = pinhole.width, pinhole.height
     uv = np.stack(np.meshgrid(np.arange(w), np.arange(h)), -1).reshape(-1, 2) + 0.5  # [H*W, 2]
-    rays = pinhole.cam_from_img(uv.astype(np.float64))
-    src = lens.img_from_cam(np.concatenate([rays, np.ones((len(rays), 1))], 1)) - 0.5  # [H*W, 2]
+    src = reproject(pinhole, lens, uv.astype(np.float64)) - 0.5  # [H*W, 2]
     return src[:, 0].reshape(h, w).astype(np.float32), src[:, 1].reshape(h, w).astype(np.float32)
 
 
@@ -74,12 +73,12 @@ def undistort_project(rec: Any, images_dir: Path, masks_dir: Optional[Path], out
     pinhole_rec = pinhole_model(rec)
     (camera_id, lens), = rec.cameras.items()
     grid_x, grid_y = remap_grids(lens, pinhole_rec.cameras[camera_id])
-    (out / "sparse").mkdir(parents=True, exist_ok=True)
-    (out / "images").mkdir(exist_ok=True)
-    if masks_dir is not None:
-        (out / "masks").mkdir(exist_ok=True)
-    pinhole_rec.write(str(out / "sparse"))
     names = sorted(image.name for image in pinhole_rec.images.values())
+    kinds = ("images", "masks") if masks_dir is not None else ("images",)
+    folders = {out / "sparse"} | {(out / kind / name).parent for kind in kinds for name in names}
+    for folder in folders | {out / kind for kind in kinds}:  # names may hold sub-folders
+        folder.mkdir(parents=True, exist_ok=True)
+    pinhole_rec.write(str(out / "sparse"))
 
     def one(name: str) -> None:
         # colour like COLMAP's undistorter writes, pixels as stored (as COLMAP read them for SIFT)
@@ -88,7 +87,6 @@ def undistort_project(rec: Any, images_dir: Path, masks_dir: Optional[Path], out
             raise FileNotFoundError(f"{Path(images_dir) / name}: registered frame missing or unreadable")
         warped = cv2.remap(frame, grid_x, grid_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                            borderValue=0)
-        (out / "images" / name).parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(out / "images" / name), warped, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         mask = cv2.imread(str(masks_dir / f"{name}.png"), cv2.IMREAD_GRAYSCALE) if masks_dir else None
         if mask is not None:
