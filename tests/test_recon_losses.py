@@ -109,6 +109,19 @@ def test_pca_normals_do_not_mix_across_depth_edges():
     assert float(normals[ok][:, 2].max()) < -0.999  # every normal points back to the camera
 
 
+def test_pca_normals_are_zero_where_the_depth_is_not_valid():
+    K = torch.tensor([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
+    depth = torch.full((24, 32), 3.0)
+    valid = torch.ones(24, 32, dtype=torch.bool)
+    valid[5:15, 4:12] = False  # a hole in the prior
+    normals, ok = L.normals_from_depth_pca(depth, K, window=5, valid=valid)
+    assert not ok[5:15, 4:12].any() and ok[~valid].sum() == 0
+    assert float(normals[~ok].abs().max()) == 0.0
+    assert float(normals[ok][:, 2].max()) < -0.999
+    empty, none_ok = L.normals_from_depth_pca(depth, K, window=5, valid=torch.zeros(24, 32, dtype=torch.bool))
+    assert not none_ok.any() and float(empty.abs().max()) == 0.0
+
+
 def test_normal_loss_values():
     n = torch.nn.functional.normalize(torch.randn(8, 8, 3), dim=-1)
     assert float(L.normal_loss(n, 2.5 * n)) == pytest.approx(0.0, abs=1e-6)

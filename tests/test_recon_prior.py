@@ -10,7 +10,7 @@ from vid2sim.factory.sfm.posed import PosedClip
 from vid2sim.factory.recon.config import DepthPriorConfig
 from vid2sim.factory.recon.data import load_views
 from vid2sim.factory.recon.depth_prior import (DepthPrior, align_disparity, estimate_priors, filter_consistent,
-                                               plane_homography)
+                                               mean_of_top_two, mvs_priors, plane_homography)
 from vid2sim.factory.recon.evaluate import load_gt_depths
 from recon_toy import make_toy_clip, toy_poses
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -50,6 +50,31 @@ def test_plane_sweep_depth_is_accurate_where_confident(toy):
             rel.append(np.median(np.abs(pr.depth[ok] - gt[idx][ok]) / gt[idx][ok]))
     assert np.mean(cover) > 0.3
     assert np.median(rel) < 0.08  # fronto-parallel windows on slanted walls at 64 px
+
+
+@pytest.mark.parametrize("count", [1, 2, 3, 4, 6])
+def test_mean_of_top_two_equals_sorting_the_stack(count):
+    rng = np.random.default_rng(count)
+    scores = [rng.uniform(-1, 1, (9, 11)).astype(np.float32) for _ in range(count)]
+    scores[0][0, :4] = -1.0  # ties, as windows the neighbours do not see
+    if count > 1:
+        scores[1][0, :4] = -1.0
+    stack = np.sort(np.stack(scores), axis=0)
+    expected = stack[-min(2, count):].mean(0)
+    got = mean_of_top_two(scores)
+    assert got.dtype == np.float32 and np.array_equal(got, expected)
+
+
+def test_plane_sweep_priors_do_not_depend_on_the_thread_count(toy):
+    clip = PosedClip.load(toy)
+    views = load_views(clip, 64)
+    conf = DepthPriorConfig(kind="mvs", num_planes=24)
+    one = mvs_priors(views, clip.points_xyz, conf, threads=1)
+    two = mvs_priors(views, clip.points_xyz, conf, threads=2)
+    assert list(one) == list(two) and any(p.confidence.any() for p in one.values())
+    for idx in one:
+        assert np.array_equal(one[idx].depth, two[idx].depth)
+        assert np.array_equal(one[idx].confidence, two[idx].confidence)
 
 
 def test_consistency_filter_keeps_agreeing_depth_and_drops_wrong_depth(toy):

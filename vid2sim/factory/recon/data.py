@@ -17,7 +17,7 @@ from vid2sim.factory.sfm.posed import PosedClip, PosedFrame
 from vid2sim.factory.runtime.stage_cache import StageError
 
 STAGE = "recon"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
 
 
 @dataclass(frozen=True)

@@ -15,6 +15,7 @@ Reads: views (images at training resolution, K, poses), sparse points. Writes no
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
@@ -99,6 +100,17 @@ def plane_homography(K_ref: np.ndarray, K_nb: np.ndarray, T_nb_ref: np.ndarray, 
 
 # ----------------------------------------------------------------------------- MVS
 
+def mean_of_top_two(scores: list[np.ndarray]) -> np.ndarray:
+    """Per pixel, the mean of the two highest of the neighbours' scores [H, W] (the one score
+    when there is one), bit for bit what sorting the stack and averaging its top two gives."""
+    first, second = scores[0], None
+    for s in scores[1:]:
+        low = np.minimum(first, s)
+        second = low if second is None else np.maximum(second, low)
+        first = np.maximum(first, s)
+    return first if second is None else (second + first) / 2
+
+
 def plane_sweep(ref: View, neighbours: list[View], near: float, far: float, conf: DepthPriorConfig
                 ) -> DepthPrior:
     """Plane-sweep depth for `ref` at its resolution capped to conf.max_width."""
@@ -113,23 +125,23 @@ def plane_sweep(ref: View, neighbours: list[View], near: float, far: float, conf
     scores = np.full((conf.num_planes, h, w), -1.0, np.float32)  # [D, H, W]
     nbs = [(scale_K(v.K, w / v.width, h / v.height), _gray(v, (w, h)),
             v.world_to_cam @ ref.cam_to_world) for v in neighbours]
+    ones, window = np.ones((h, w), np.uint8), np.ones((win, win), np.uint8)
     for d_i, invd in enumerate(inv):
         per_nb = []
         for K_nb, b_img, T in nbs:
             Hm = plane_homography(K_ref, K_nb, T, 1.0 / invd)
             b = cv2.warpPerspective(b_img, Hm, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                     borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            inside = cv2.warpPerspective(np.ones_like(b_img), Hm, (w, h),
-                                         flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP, borderValue=0)
+            inside = cv2.warpPerspective(ones, Hm, (w, h), flags=cv2.INTER_NEAREST | cv2.WARP_INVERSE_MAP,
+                                         borderValue=0)  # [H, W] uint8: 1 where the neighbour sees
             mu_b = _box(b, win)
             var_b = np.maximum(_box(b * b, win) - mu_b ** 2, 0)
             cov = _box(a * b, win) - mu_a * mu_b
             ncc = cov / np.sqrt(var_a * var_b + 1e-8)
-            ncc[_box(inside, win) < 0.999] = -1.0
+            # windows with a pixel the neighbour does not see (a 0 in the window's erosion)
+            ncc[cv2.erode(inside, window, borderType=cv2.BORDER_REFLECT) == 0] = -1.0
             per_nb.append(ncc)
-        stack = np.sort(np.stack(per_nb), axis=0)  # ascending over neighbours
-        top = stack[-min(2, len(per_nb)):]
-        scores[d_i] = top.mean(0)
+        scores[d_i] = mean_of_top_two(per_nb)
     best = scores.argmax(0)  # [H, W]
     best_score = np.take_along_axis(scores, best[None], 0)[0]
     # parabolic sub-plane refinement in inverse depth
@@ -196,21 +208,26 @@ def filter_consistent(views: list[View], priors: dict[int, DepthPrior], conf: De
     return out
 
 
-def mvs_priors(views: list[View], points: np.ndarray, conf: DepthPriorConfig) -> dict[int, DepthPrior]:
-    """Plane-sweep priors for every training view (views without usable neighbours get an
-    empty confidence mask), then the geometric consistency filter."""
-    out = {}
-    for ref in views:
-        if ref.split != "train":
-            continue
-        rng = depth_range(points, ref, conf.near_far_percentiles)
-        empty = DepthPrior(np.zeros((ref.height, ref.width), np.float32), np.zeros((ref.height, ref.width), bool))
-        if rng is None:
-            out[ref.index] = empty
-            continue
-        nbs = choose_neighbours(ref, views, conf.neighbours, median_depth=0.5 * (rng[0] / 0.7 + rng[1] / 1.5))
-        out[ref.index] = plane_sweep(ref, nbs, *rng, conf) if nbs else empty
-    return filter_consistent(views, out, conf)
+def view_prior(ref: View, views: list[View], points: np.ndarray, conf: DepthPriorConfig) -> DepthPrior:
+    """The plane-sweep prior of one training view (an empty confidence mask when the sparse
+    points give no depth range or no neighbour has a usable baseline)."""
+    rng = depth_range(points, ref, conf.near_far_percentiles)
+    nbs = [] if rng is None else choose_neighbours(
+        ref, views, conf.neighbours, median_depth=0.5 * (rng[0] / 0.7 + rng[1] / 1.5))
+    if not nbs:
+        return DepthPrior(np.zeros((ref.height, ref.width), np.float32), np.zeros((ref.height, ref.width), bool))
+    return plane_sweep(ref, nbs, *rng, conf)
+
+
+def mvs_priors(views: list[View], points: np.ndarray, conf: DepthPriorConfig,
+               threads: int = 1) -> dict[int, DepthPrior]:
+    """Plane-sweep priors for every training view, `threads` views at a time (OpenCV and numpy
+    release the GIL; each view's result is the same on any thread count), then the geometric
+    consistency filter."""
+    train = [v for v in views if v.split == "train"]
+    with ThreadPoolExecutor(max(1, threads)) as pool:
+        priors = list(pool.map(lambda ref: view_prior(ref, views, points, conf), train))
+    return filter_consistent(views, {v.index: p for v, p in zip(train, priors)}, conf)
 
 
 # ----------------------------------------------------------------------------- Depth Anything
@@ -268,12 +285,14 @@ def depth_anything_priors(views: list[View], points: np.ndarray, conf: DepthPrio
     return out
 
 
-def estimate_priors(conf: DepthPriorConfig, views: list[View], points: np.ndarray) -> dict[int, DepthPrior]:
-    """Priors for the training views keyed by frame index ({} for kind='none')."""
+def estimate_priors(conf: DepthPriorConfig, views: list[View], points: np.ndarray,
+                    threads: int = 1) -> dict[int, DepthPrior]:
+    """Priors for the training views keyed by frame index ({} for kind='none'); `threads`: how
+    many views the plane sweep works on at once."""
     if conf.kind == "none":
         return {}
     if conf.kind == "mvs":
-        return mvs_priors(views, points, conf)
+        return mvs_priors(views, points, conf, threads)
     if conf.kind == "depth_anything":
         return depth_anything_priors(views, points, conf)
     raise StageError(STAGE, "unknown_depth_prior", f"prior.kind={conf.kind!r}; use mvs | depth_anything | none")

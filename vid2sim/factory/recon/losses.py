@@ -160,16 +160,18 @@ def normals_from_depth_pca(depth: torch.Tensor, K: torch.Tensor, window: int = 5
     centre = depth.reshape(-1)
     wgt = (nb_ok & ((nb_d - centre).abs() <= rel_tol * centre)).to(torch.float32)  # [k2, HW]
     cnt = wgt.sum(0)  # [HW]
-    mean = (nb * wgt).sum(1) / cnt.clamp_min(1)  # [3, HW]
-    diff = (nb - mean[:, None]) * wgt.sqrt()  # [3, k2, HW]
-    cov = torch.einsum("akp,bkp->pab", diff, diff) / cnt.clamp_min(1)[:, None, None]  # [HW, 3, 3]
+    ok = valid.reshape(-1) & (cnt >= max(3, k2 // 2))
+    at = ok.nonzero()[:, 0]  # [P] the pixels that get a normal
+    nb, wgt, cnt, centre = nb[:, :, at], wgt[:, at], cnt[at], centre[at]
+    mean = (nb * wgt).sum(1) / cnt  # [3, P]
+    diff = (nb - mean[:, None]) * wgt.sqrt()  # [3, k2, P]
+    cov = torch.einsum("akp,bkp->pab", diff, diff) / cnt[:, None, None]  # [P, 3, 3]
     cov = cov + torch.eye(3, dtype=cov.dtype) * 1e-10 * centre[:, None, None] ** 2
     _, vecs = torch.linalg.eigh(cov)
-    n = vecs[:, :, 0]  # [HW, 3] smallest-eigenvalue direction
-    flip = (n * pts.reshape(-1, 3)).sum(-1) > 0
-    n = torch.where(flip[:, None], -n, n)
-    ok = valid.reshape(-1) & (cnt >= max(3, k2 // 2))
-    n = torch.where(ok[:, None], n, torch.zeros_like(n))
+    n_at = vecs[:, :, 0]  # [P, 3] smallest-eigenvalue direction
+    flip = (n_at * pts.reshape(-1, 3)[at]).sum(-1) > 0
+    n = torch.zeros(h * w, 3, dtype=n_at.dtype)
+    n[at] = torch.where(flip[:, None], -n_at, n_at)
     return n.reshape(h, w, 3).float(), ok.reshape(h, w)
 
 

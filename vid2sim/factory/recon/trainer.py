@@ -71,7 +71,7 @@ def load_or_estimate_priors(conf: ReconConfig, views: list[View], points: np.nda
         if str(data["key"]) == key:
             idx = data["index"]
             return {int(i): DepthPrior(data["depth"][k], data["conf"][k]) for k, i in enumerate(idx)}
-    priors = estimate_priors(conf.prior, views, points)
+    priors = estimate_priors(conf.prior, views, points, threads=torch.get_num_threads())  # the stage's CPUs
     if priors:
         idx = sorted(priors)
         tmp = path.with_name("prior.tmp.npz")
