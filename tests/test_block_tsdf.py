@@ -93,6 +93,14 @@ def test_fill_in_adds_no_surface_away_from_the_box(box_meshes):
     assert v[:, 1].min() > -0.1  # nothing in front of the visible side
 
 
+def test_block_engine_builds_the_same_mesh_twice(box_meshes):
+    """The block hash map's order changes between runs; the stage's mesh must not."""
+    again = build_meshes(walk_views(), walk_conf(collision_tsdf="blocks", fill_free_views=1))
+    for name in ("vertices", "triangles"):
+        assert np.array_equal(np.asarray(getattr(again.collision, name)),
+                              np.asarray(getattr(box_meshes["fill"].collision, name)))
+
+
 @pytest.mark.parametrize("fill", [0, 1])
 def test_block_engine_matches_gt_obstacles(fill):
     views, _ = ring_views(full_scene())

@@ -4,7 +4,7 @@
 import numpy as np
 import open3d as o3d
 
-from vid2sim.factory.geometry.mesh_ops import edge_components, remove_fragments
+from vid2sim.factory.geometry.mesh_ops import canonical_order, edge_components, remove_fragments, simplify
 
 
 def mesh_of(vertices, faces) -> o3d.geometry.TriangleMesh:
@@ -49,3 +49,32 @@ def test_remove_fragments_drops_small_and_short_pieces():
     out = remove_fragments(big + tiny + few, min_faces=40, min_extent_m=0.25)
     assert len(out.triangles) == len(big.triangles)
     assert np.allclose(np.asarray(out.vertices).mean(0), 0.0, atol=1e-6)
+
+
+def _shuffled(mesh: o3d.geometry.TriangleMesh, seed: int) -> o3d.geometry.TriangleMesh:
+    """The same surface with vertices and triangles in another order, each triangle rotated."""
+    rng = np.random.default_rng(seed)
+    v, f = np.asarray(mesh.vertices), np.asarray(mesh.triangles)
+    perm = rng.permutation(len(v))  # new -> old
+    rank = np.empty_like(perm)
+    rank[perm] = np.arange(len(perm))
+    f = rank[f][rng.permutation(len(f))]
+    f = np.roll(f, rng.integers(0, 3), axis=1)  # rotation keeps the orientation
+    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v[perm]), o3d.utility.Vector3iVector(f))
+
+
+def test_canonical_order_is_the_same_for_any_input_order_and_keeps_the_surface():
+    sphere = o3d.geometry.TriangleMesh.create_sphere(1.0, 20)
+    ref = canonical_order(o3d.geometry.TriangleMesh(sphere))
+    for seed in range(3):
+        got = canonical_order(_shuffled(sphere, seed))
+        assert np.array_equal(np.asarray(got.vertices), np.asarray(ref.vertices))
+        assert np.array_equal(np.asarray(got.triangles), np.asarray(ref.triangles))
+        # decimation after the canonical order gives one result, as the meshing stage needs
+        a, b = simplify(ref, 300), simplify(got, 300)
+        assert np.array_equal(np.asarray(a.triangles), np.asarray(b.triangles))
+    v, f = np.asarray(ref.vertices), np.asarray(ref.triangles)
+    assert len(f) == len(sphere.triangles) and len(v) == len(sphere.vertices)
+    normals = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    outward = (normals * v[f].mean(axis=1)).sum(axis=1) > 0
+    assert outward.all()  # every triangle kept its orientation

@@ -22,6 +22,8 @@ import numpy as np
 import open3d as o3d
 import open3d.core as o3c
 
+from vid2sim.factory.geometry.mesh_ops import canonical_order
+
 BLOCK_RESOLUTION = 16  # voxels per block side: the legacy volume's unit size
 INITIAL_BLOCKS = 1024  # the hash map grows past this on demand
 
@@ -117,7 +119,9 @@ class BlockTSDF:
         return int(len(filled))
 
     def mesh(self) -> o3d.geometry.TriangleMesh:
-        """Marching cubes over cubes whose 8 corners are all observed (or filled)."""
+        """Marching cubes over cubes whose 8 corners are all observed (or filled), in canonical
+        order: the block hash map hands out blocks in a different order from run to run, and the
+        clean-up's decimation depends on the order."""
         if self.grid.hashmap().size() == 0:
             return o3d.geometry.TriangleMesh()
-        return self.grid.extract_triangle_mesh(0.5).to_legacy()
+        return canonical_order(self.grid.extract_triangle_mesh(0.5).to_legacy())

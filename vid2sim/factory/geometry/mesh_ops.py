@@ -60,3 +60,21 @@ def tidy(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
     mesh.remove_duplicated_triangles()
     mesh.remove_unreferenced_vertices()
     return mesh
+
+
+def canonical_order(mesh: o3d.geometry.TriangleMesh) -> o3d.geometry.TriangleMesh:
+    """The same mesh with its vertices sorted by (x, y, z) and its triangles sorted, each rotated
+    to start at its smallest vertex index (orientation kept): one order for one set of vertices
+    and triangles, whatever order a multi-threaded extraction produced them in. Duplicate
+    vertices are merged first (`tidy`); other attributes are dropped."""
+    mesh = tidy(mesh)
+    v = np.asarray(mesh.vertices)  # [V, 3]
+    f = np.asarray(mesh.triangles)  # [F, 3]
+    order = np.lexsort((v[:, 2], v[:, 1], v[:, 0]))  # [V] new -> old
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))  # old -> new
+    f = rank[f]
+    first = f.argmin(axis=1)  # [F] rotate so the smallest index leads
+    f = f[np.arange(len(f))[:, None], (first[:, None] + np.arange(3)) % 3]
+    f = f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
+    return o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(v[order]), o3d.utility.Vector3iVector(f))

@@ -53,7 +53,7 @@ from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "meshing"
-STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 3  # bump when this stage's outputs change for the same inputs
 
 @dataclass(frozen=True)
 class MeshingOutputs:
