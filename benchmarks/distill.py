@@ -35,8 +35,10 @@ from typing import Optional
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 from common import Run, add_run_args  # noqa: E402
-from street_registry import build  # noqa: E402
+from street_registry import build, scene_id as street_id  # noqa: E402
 
+from vid2sim.registry import Registry  # noqa: E402
+from vid2sim.registry.split import SplitConfig, make_split  # noqa: E402
 from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
 from vid2sim.training.distill import STUDENT_NAME, train_distill  # noqa: E402
 from vid2sim.training.ensemble import build_ensemble  # noqa: E402
@@ -52,7 +54,20 @@ def cpu_seconds() -> float:
 
 
 def registry(args) -> str:
-    return str(build(args.root, list(range(1, args.streets + 1)), vary=True).root)
+    return str(build(args.root, list(range(1, args.streets + args.extra_streets + 1)), vary=True).root)
+
+
+def extra_street_sides(args, reg: str) -> tuple[Optional[list[str]], Optional[list[str]]]:
+    """(training, held-out) scene ids with --extra-streets: the held-out streets are the split's of
+    the first --streets streets alone, the extra streets join the training side; (None, None)
+    without, so the runs use the registry's own split."""
+    if not args.extra_streets:
+        return None, None
+    registry_ = Registry(reg)
+    base_ids = {street_id(seed, True) for seed in range(1, args.streets + 1)}
+    base = make_split([r for r in registry_.list() if r.scene_id in base_ids], SplitConfig(seed=0), 0)
+    split = registry_.split(seed=0, test_groups=base.test_groups)
+    return list(split.train), list(split.test)
 
 
 def distill_config(args) -> DistillConfig:
@@ -106,11 +121,12 @@ def camera_kwargs(args) -> dict:
     return {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
 
 
-def train_one(args, reg: str, seed: int) -> tuple[Path, dict]:
-    """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget."""
+def train_one(args, reg: str, seed: int, scene_ids: Optional[list[str]] = None) -> tuple[Path, dict]:
+    """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget.
+    scene_ids: the training streets (None: the registry split's training side)."""
     run_dir = args.root / f"distill_{args.steps}_s{seed}{args.tag}"
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
-                         seed=seed, method="distill", stuck_steps=10,
+                         seed=seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
                                      "fidelity": args.fidelity, **camera_kwargs(args)},
                          distill=distill_config(args))
@@ -128,17 +144,19 @@ def evaluate_saved(config: EvalConfig, saved: Path) -> EvalReport:
 
 def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[list[str]] = None) -> EvalConfig:
     """The benchmark's evaluation protocol for one student (default scenes: the split's held-out ones)."""
-    return EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes or [], trials=args.trials,
+    scenes = scenes or getattr(args, "heldout_ids", None) or []
+    return EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes, trials=args.trials,
                       obstacles=obstacles, max_steps=args.eval_max_steps or None,
                       checkout_root=str(args.root / "checkouts"))
 
 
 def run_heldout(args, run: Run) -> None:
     reg = registry(args)
+    args.train_ids, args.heldout_ids = extra_street_sides(args, reg)
     successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
     trained: list[tuple[Path, dict]] = []
     for seed in args.seeds:
-        run_dir, budget = train_one(args, reg, seed)
+        run_dir, budget = train_one(args, reg, seed, args.train_ids)
         trained.append((run_dir, budget))
         run.record(f"pointnav seed {seed}", "train_wall_s", budget["train_wall_s"], "s", budget)
         run.record(f"pointnav seed {seed}", "train_cpu_s", budget["train_cpu_s"], "s", budget)
@@ -269,6 +287,9 @@ def main() -> None:
     ap.add_argument("--num-cpus", type=int, default=2, help="study: local Ray runtime CPUs (one training each)")
     ap.add_argument("--quick", action="store_true",
                     help="6 streets, one seed (two with --ensemble), 2 rounds of 200 steps, 2 trials")
+    ap.add_argument("--extra-streets", type=int, default=0,
+                    help="heldout: this many more streets (seeds after --streets') on the training side; the held-out "
+                         "streets stay those of the first --streets (give the run its own --root)")
     ap.add_argument("--tag", default="")
     add_run_args(ap)
     args = ap.parse_args()
