@@ -163,3 +163,12 @@ def cli_add_worker(root: str, bundle: str, barrier) -> dict:
     r = CliRunner().invoke(app, ["add", bundle, "-r", root, "--json"])
     assert r.exit_code == 0, r.output
     return json.loads(r.stdout)
+
+
+def checkout_worker(root: str, scene_id: str, dest: str, barrier) -> str:
+    """Run in a spawned process: wait for the others, then check `scene_id` out into `dest`."""
+    from vid2sim.registry.store import Registry
+
+    reg = Registry(root)
+    barrier.wait()
+    return str(reg.checkout(scene_id, dest=dest))

@@ -16,7 +16,7 @@ import time
 from pathlib import Path
 
 import pytest
-from registry_fixtures import KILL_LOOP, concurrent_worker, make_bundle
+from registry_fixtures import KILL_LOOP, checkout_worker, concurrent_worker, make_bundle
 
 from vid2sim.registry import Registry
 
@@ -70,6 +70,24 @@ def test_concurrent_committers_lose_nothing(tmp_path):
     assert n_compact >= 1 and reg.manifest.num_files() <= AUTO_COMPACT_FILES + N_PROCS
     # version 0 = table creation, then one commit per row, plus the compactions (rows unchanged)
     assert reg.version == len(reg.history()) + n_compact
+
+
+@pytest.mark.timeout(300)
+def test_concurrent_checkouts_of_one_scene_into_one_folder_all_succeed(tmp_path):
+    """Training processes sharing a checkout root check the same scene out at once: each copies
+    into its own temporary folder, the first rename wins and the others hand back its folder."""
+    root = str(tmp_path / "reg")
+    reg = Registry(root)
+    reg.add(make_bundle(tmp_path / "b", "street", seed=3, n_splats=400_000))  # copies of ~0.2 s overlap
+    dest = tmp_path / "checkouts" / "street@1"
+    n = 2 * N_PROCS
+    ctx = mp.get_context("spawn")
+    with ctx.Manager() as manager, ctx.Pool(n) as pool:
+        barrier = manager.Barrier(n)
+        got = pool.starmap(checkout_worker, [(root, "street", str(dest), barrier)] * n)
+    assert got == [str(dest)] * n
+    assert reg.refresh_checkout(reg.show("street"), dest) == []  # every artifact as registered
+    assert [p.name for p in dest.parent.iterdir()] == ["street@1"]  # no temporary folder left
 
 
 @pytest.mark.timeout(300)

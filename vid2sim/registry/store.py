@@ -107,6 +107,18 @@ def _check_grace(grace_s: float) -> float:
 
 
 
+def _checkout_marker(folder: Path) -> Optional[dict]:
+    """What a checkout folder's marker says it holds: None without a marker, {} for an unreadable one."""
+    marker = folder / CHECKOUT_MARKER
+    if not marker.is_file():
+        return None
+    try:
+        done = json.loads(marker.read_text())
+    except (ValueError, UnicodeDecodeError, OSError):
+        return {}
+    return done if isinstance(done, dict) else {}
+
+
 def _checkout_owner(done: Optional[dict], rec: SceneRecord, root: str) -> str:
     """What a checkout folder's marker says it holds, for the error refusing to overwrite it."""
     if not isinstance(done, dict) or not done:
@@ -644,16 +656,10 @@ class Registry:
         out = Path(dest) if dest is not None else Path("vid2sim-checkouts") / rec.ref
         if out.exists() and not out.is_dir():
             raise RegistryError(f"{out}: checkout destination is a file, not a folder")
-        marker = out / CHECKOUT_MARKER
-        done: Optional[dict] = None  # what the folder's marker says it holds
-        if marker.is_file():
-            try:
-                done = json.loads(marker.read_text())
-            except (ValueError, UnicodeDecodeError):
-                done = {}
-            if isinstance(done, dict) and done.get("content_hash") == rec.content_hash:
-                self.refresh_checkout(rec, out)
-                return out
+        done = _checkout_marker(out)  # what the folder's marker says it holds
+        if isinstance(done, dict) and done.get("content_hash") == rec.content_hash:
+            self.refresh_checkout(rec, out)
+            return out
         if out.exists() and any(out.iterdir()):
             raise RegistryError(f"{out}: checkout destination exists and holds something else"
                                 f"{_checkout_owner(done, rec, self.root)}")
@@ -671,9 +677,16 @@ class Registry:
                     raise RegistryError(f"{rec.ref}: artifact {a.name} blob {a.sha256} is corrupt (hashes to {got})")
             (tmp / CHECKOUT_MARKER).write_text(json.dumps({"ref": rec.ref, "content_hash": rec.content_hash,
                                                            "registry": self.root}))
-            if out.exists():
-                out.rmdir()
-            os.replace(tmp, out)
+            try:
+                if out.exists():
+                    out.rmdir()  # an empty folder the caller made
+                os.replace(tmp, out)
+            except OSError:  # `out` filled meanwhile: another process finished the same checkout?
+                done = _checkout_marker(out)
+                if not (isinstance(done, dict) and done.get("content_hash") == rec.content_hash):
+                    raise RegistryError(f"{out}: checkout destination filled while checking out "
+                                        f"{rec.ref}{_checkout_owner(done, rec, self.root)}") from None
+                shutil.rmtree(tmp, ignore_errors=True)
         except BaseException:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
