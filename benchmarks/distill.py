@@ -3,6 +3,7 @@
     python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav] [--train-eval 8]
     python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 3 4 5 6 7 8 --ensemble 3   # 3 ensembles of 3
     python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
+    python benchmarks/distill.py heldout --root ROOT2 --streets 40 --extra-streets 32 --seeds 0 1 2 --steps 64000
     python benchmarks/distill.py heldout --quick        # 6 streets, one seed, 2 small rounds (smoke run)
 
 Scenes: synthetic-street ground-truth bundles whose layout, furniture and light differ by seed
@@ -63,10 +64,11 @@ def extra_street_sides(args, reg: str) -> tuple[Optional[list[str]], Optional[li
     without, so the runs use the registry's own split."""
     if not args.extra_streets:
         return None, None
-    registry_ = Registry(reg)
+    store = Registry(reg)
     base_ids = {street_id(seed, True) for seed in range(1, args.streets + 1)}
-    base = make_split([r for r in registry_.list() if r.scene_id in base_ids], SplitConfig(seed=0), 0)
-    split = registry_.split(seed=0, test_groups=base.test_groups)
+    base = make_split([r for r in store.list() if r.scene_id in base_ids], SplitConfig(seed=0),
+                      registry_version=0)  # only its held-out groups are used
+    split = store.split(seed=0, test_groups=base.test_groups)
     return list(split.train), list(split.test)
 
 
@@ -143,7 +145,8 @@ def evaluate_saved(config: EvalConfig, saved: Path) -> EvalReport:
 
 
 def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[list[str]] = None) -> EvalConfig:
-    """The benchmark's evaluation protocol for one student (default scenes: the split's held-out ones)."""
+    """The benchmark's evaluation protocol for one student (default scenes: the split's held-out ones,
+    with --extra-streets those of the base streets' split, set by `run_heldout` as args.heldout_ids)."""
     scenes = scenes or getattr(args, "heldout_ids", None) or []
     return EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes, trials=args.trials,
                       obstacles=obstacles, max_steps=args.eval_max_steps or None,
