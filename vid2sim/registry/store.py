@@ -121,7 +121,7 @@ def _checkout_marker(folder: Path) -> Optional[dict]:
 
 def _checkout_owner(done: Optional[dict], rec: SceneRecord, root: str) -> str:
     """What a checkout folder's marker says it holds, for the error refusing to overwrite it."""
-    if not isinstance(done, dict) or not done:
+    if not done:
         return ""
     return (f" ({done.get('ref', '?')} content {str(done.get('content_hash', '?'))[:12]} from registry "
             f"{done.get('registry', '?')}; wanted {rec.ref} content {rec.content_hash[:12]} from {root}:"
@@ -657,7 +657,7 @@ class Registry:
         if out.exists() and not out.is_dir():
             raise RegistryError(f"{out}: checkout destination is a file, not a folder")
         done = _checkout_marker(out)  # what the folder's marker says it holds
-        if isinstance(done, dict) and done.get("content_hash") == rec.content_hash:
+        if done and done.get("content_hash") == rec.content_hash:
             self.refresh_checkout(rec, out)
             return out
         if out.exists() and any(out.iterdir()):
@@ -683,7 +683,7 @@ class Registry:
                 os.replace(tmp, out)
             except OSError:  # `out` filled meanwhile: another process finished the same checkout?
                 done = _checkout_marker(out)
-                if not (isinstance(done, dict) and done.get("content_hash") == rec.content_hash):
+                if not (done and done.get("content_hash") == rec.content_hash):
                     raise RegistryError(f"{out}: checkout destination filled while checking out "
                                         f"{rec.ref}{_checkout_owner(done, rec, self.root)}") from None
                 shutil.rmtree(tmp, ignore_errors=True)
