@@ -79,7 +79,8 @@ def distill_config(args) -> DistillConfig:
                             depth_target=args.depth_target)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
-                   teacher_comfort=args.teacher_comfort, weight_decay=args.weight_decay,
+                   teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
+                   weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
                    depth_weight=args.depth_weight, ema_decay=args.ema_decay, augment=args.augment,
                    student=student)
@@ -256,6 +257,8 @@ def main() -> None:
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
     ap.add_argument("--teacher-comfort", type=float, default=DistillConfig.teacher_comfort,
                     help="m the teacher's route keeps from blocked cells where there is room (0: the shortest route)")
+    ap.add_argument("--teacher-replan", type=float, default=DistillConfig.teacher_replan,
+                    help="m off its path at which the teacher re-plans (0: at every state)")
     ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,

@@ -181,3 +181,41 @@ def test_teacher_clearance_reads_the_view_left_to_right(street_registry, tmp_pat
     with pytest.raises(ValueError, match="clearance_rays"):
         TeacherLabels(env.env, clearance_rays=-1)
     env.close()
+
+
+def teacher_after_drift(registry, checkouts, replan: float, drift_steps: int = 12):
+    """(label after driving a left drift from seed 0's start, label of a fresh teacher put at that pose)."""
+    from vid2sim.training.wrappers import TeacherLabels
+
+    def make():
+        return TeacherLabels(gym.make("vid2sim/PointNav-v0", registry=str(registry), scenes=SCENE, training=False,
+                                      fidelity="exact", checkout_root=str(checkouts)), replan_distance=replan)
+    driven, fresh = make(), make()
+    driven.reset(seed=0)
+    for _ in range(drift_steps):
+        _, _, terminated, truncated, info = driven.step(np.array([1.0, 0.4], np.float32))
+        assert not (terminated or truncated)
+    fresh.reset(seed=0)
+    s = driven.unwrapped.state
+    fresh.unwrapped.state = RobotState(s.x, s.y, s.yaw)
+    fresh.unwrapped.world.physics.place(s.x, s.y, s.yaw)
+    fresh.expert.last = None  # no memory of its own start
+    label = fresh._label({})["teacher_action"]
+    driven.close()
+    fresh.close()
+    return info["teacher_action"], label
+
+
+def test_teacher_replanning_at_every_state_labels_the_state_alone(street_registry, tmp_path):
+    """replan_distance 0: a teacher that drove here and one put here label the state alike, and the
+    label (the way from here) differs from the default teacher's, which steers back to the route it
+    planned at the start while the robot is within 0.3 m of it."""
+    from vid2sim.training.wrappers import TeacherLabels
+    driven, fresh = teacher_after_drift(street_registry, tmp_path, 0.0, drift_steps=4)
+    np.testing.assert_allclose(driven, fresh, atol=1e-6)
+    default, _ = teacher_after_drift(street_registry, tmp_path, 0.3, drift_steps=4)
+    assert abs(default[1] - driven[1]) > 0.05
+    env = gym.make("vid2sim/PointNav-v0", registry=str(street_registry), scenes=SCENE, checkout_root=str(tmp_path))
+    with pytest.raises(ValueError, match="replan_distance"):
+        TeacherLabels(env, replan_distance=-1.0)
+    env.close()

@@ -80,6 +80,9 @@ class DistillConfig:
     # EpisodeConfig.expert_comfort, envs/planning.py; 0: the shortest route, which grazes the 0.45 m
     # clearance in every bend): a student that strays from a route down the middle still has room
     teacher_comfort: float = 0.8
+    # m off its path at which the teacher re-plans from the robot's position (training/wrappers.py
+    # `TeacherLabels`; 0: at every state, so a label depends on the state alone; inf: never)
+    teacher_replan: float = 0.3
     # the training envs' per-episode image augmentation (exposure, tint, fog, rain, snow; envs/augment.py).
     # Off: held-out SR 0.70 against 0.63 with it, 3 seeds (docs/studies/pixel_distillation.md); the
     # evaluation protocol renders without it. Env arguments given (`env_kwargs["augment"]`) win.

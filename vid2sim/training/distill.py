@@ -213,7 +213,8 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     rays = config.distill.student.clearance_rays
     grid = DEPTH_GRID if config.distill.student.depth_target else None
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
-                    config.stuck_steps, teacher=True, teacher_clearance_rays=rays, teacher_depth_grid=grid)
+                    config.stuck_steps, teacher=True, teacher_clearance_rays=rays, teacher_depth_grid=grid,
+                    teacher_replan=config.distill.teacher_replan)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
 
 

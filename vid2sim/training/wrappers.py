@@ -20,7 +20,9 @@ expert is in its blocked-pose recovery (alternating full lock): those labels dep
 expert's own history, not on what the camera sees, and the learner drops them. When the robot
 is more than `replan_distance` m from the expert's path (the student drove elsewhere, e.g. round
 the other side of an obstacle), the path is re-planned from the robot's position, so the label is
-the way to the goal from where the robot is, not back to a path it left.
+the way to the goal from where the robot is, not back to a path it left. With `replan_distance`
+0 it re-plans at every state: the label is then a function of the state alone (pose, map,
+obstacles, goal), never of where the robot was when the path was planned; `inf`: never.
 With `clearance_rays` = K > 0 it also adds `info["teacher_clearance"]` float32 [K]: what the camera
 looks at, as privileged ranges (`envs/sensing.py`): K rays from the robot centre at
 `RAY_HEIGHT` (`envs/sensing.py`) over the camera's horizontal field of view (left to right as seen), each the
@@ -109,6 +111,8 @@ class TeacherLabels(gym.Wrapper):
                                "path (the scripted teacher acts only in vid2sim navigation envs)")
         if clearance_rays < 0:
             raise ValueError(f"clearance_rays must be >= 0, got {clearance_rays}")
+        if not replan_distance >= 0:
+            raise ValueError(f"replan_distance must be >= 0 (inf: never), got {replan_distance}")
         self.expert = PurePursuitExpert()
         self.replan_distance = replan_distance
         self.replans = 0
@@ -135,7 +139,7 @@ class TeacherLabels(gym.Wrapper):
         return float(np.min(np.hypot(path[:, 0] - x, path[:, 1] - y))) > self.replan_distance
 
     def _label(self, info: dict) -> dict:
-        if self.replan_distance > 0 and self._off_path():
+        if self.replan_distance == 0 or (math.isfinite(self.replan_distance) and self._off_path()):
             path = self.env.unwrapped.replan_expert_path()
             if path is not None:
                 self.expert.path, self.expert.index = np.asarray(path, np.float64), 0
