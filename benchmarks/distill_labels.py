@@ -1,6 +1,7 @@
 """How closely a distilled student follows its teacher on the states it drove into itself.
 
     python benchmarks/distill_labels.py RUN_DIR [RUN_DIR ...] [--rounds 4]
+    python benchmarks/distill_labels.py RUN_DIR --contacts 5 --registry ROOT/registry
 
 Reads a distillation run folder (`vid2sim train --method distill`): its final student
 (`student.pt`, the weight average when the run kept one) and the labelled states of its last
@@ -9,11 +10,19 @@ steering against the teacher's label binned by the label (mean, spread, share of
 sign), the correlation of the two, and the mean squared error: a student whose steering is a
 shrunken copy of the labels (mean +0.2 where the teacher says full lock) cannot turn away from
 what it is about to hit. Nothing is trained; CPU seconds are the forward passes only.
+
+`--contacts K` also drives K evaluation episodes per held-out street (`vid2sim eval policy`'s
+protocol: seeds 1000 + k, 0-5 static obstacles, 600 steps) with the teacher labelling every state
+beside the student (`TeacherLabels`, the run's comfortable route), twice: the student alone, and
+the student with the teacher taking the wheel at the first contact. It prints, per failed
+episode, the student's and the teacher's steering over the 15 steps before the first contact,
+and both runs' failures: what a rescue after the contact would win.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -22,7 +31,14 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import Run, add_run_args  # noqa: E402
 
+from dataclasses import replace  # noqa: E402
+
+import gymnasium as gym  # noqa: E402
+
 from vid2sim.training.distill import Batch  # noqa: E402
+from vid2sim.training.evaluate import (EvalConfig, eval_env_config, held_out_scenes, load_policy,  # noqa: E402
+                                       run_observation_kwargs)
+from vid2sim.training.wrappers import TeacherLabels  # noqa: E402
 from vid2sim.training.run_files import policy_path  # noqa: E402
 from vid2sim.training.student import StudentPolicy  # noqa: E402
 
@@ -61,15 +77,68 @@ def label_fit(run_dir: Path, rounds: int) -> dict:
             "label_var": float(label.var()), "full_lock_share": float(np.mean(np.abs(label) >= 0.9))}
 
 
+def contact_episodes(run_dir: Path, registry: str, trials: int, rescue: bool) -> dict:
+    """Held-out episodes of the run's student with teacher labels beside it (see the module docs)."""
+    saved = json.loads((run_dir / "config.json").read_text())
+    checkouts = saved.get("env_kwargs", {}).get("checkout_root", str(run_dir / "scenes"))
+    conf = EvalConfig(registry=registry, policy=str(run_dir), trials=trials, max_steps=600, checkout_root=checkouts)
+    env_id, env_conf = eval_env_config(conf)
+    comfort = saved["distill"].get("teacher_comfort", 0.0)
+    env_conf = replace(env_conf, episode=replace(env_conf.episode, expert_comfort=comfort))
+    scenes = held_out_scenes(conf)
+    env = TeacherLabels(gym.make(env_id, registry=registry, scenes=scenes, config=env_conf,
+                                 checkout_root=conf.checkout_root, **run_observation_kwargs(conf.policy)))
+    act, _ = load_policy(conf.policy, conf.seed)
+    failures, before_contact = 0, []
+    for sid in scenes:
+        for k in range(trials):
+            obs, info = env.reset(seed=conf.seed + k, options={"scene_id": sid})
+            steer, contact = [], None
+            while True:
+                action = act(env, obs) if contact is None or not rescue else info["teacher_action"]
+                steer.append((float(action[1]), float(info["teacher_action"][1])))
+                obs, _, terminated, truncated, info = env.step(action)
+                contact = len(steer) if contact is None and info.get("collided") else contact
+                if terminated or truncated:
+                    break
+            if not info["nav_episode"].success:
+                failures += 1
+                if contact is not None:
+                    before_contact.append({"scene_id": sid, "trial": k, "contact_step": contact,
+                                           "student": [a for a, _ in steer[max(0, contact - 15):contact]],
+                                           "teacher": [t for _, t in steer[max(0, contact - 15):contact]]})
+    env.close()
+    return {"episodes": len(scenes) * trials, "failures": failures, "failures_after_contact": before_contact}
+
+
+def report_contacts(run: Run, run_dir: Path, alone: dict, rescued: dict) -> None:
+    print(f"{run_dir.name}: {alone['failures']} of {alone['episodes']} held-out episodes fail, "
+          f"{len(alone['failures_after_contact'])} after a contact; with the teacher driving from the first "
+          f"contact {rescued['failures']} fail")
+    for f in alone["failures_after_contact"]:
+        print(f"  {f['scene_id']} trial {f['trial']}, contact at step {f['contact_step']}: student "
+              f"{np.round(f['student'], 2).tolist()}, teacher {np.round(f['teacher'], 2).tolist()}")
+    run.record_all(f"{run_dir.name} held-out episodes", {"failures": alone["failures"],
+                   "failures_after_contact": len(alone["failures_after_contact"]),
+                   "failures_with_rescue": rescued["failures"]},
+                   config={"episodes": alone["episodes"], "before_contact": alone["failures_after_contact"]})
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("runs", type=Path, nargs="+", help="distillation run folders")
     ap.add_argument("--rounds", type=int, default=4, help="the last this many DAgger rounds")
+    ap.add_argument("--contacts", type=int, default=0, help="held-out episodes per street to drive (0: none)")
+    ap.add_argument("--registry", default=None, help="with --contacts: the registry the run trained on")
     add_run_args(ap)
     args = ap.parse_args()
     with Run("distill_labels", args) as run:
         for run_dir in args.runs:
             report(run, run_dir, label_fit(run_dir, args.rounds))
+            if args.contacts:
+                registry = args.registry or json.loads((run_dir / "config.json").read_text())["registry"]
+                report_contacts(run, run_dir, contact_episodes(run_dir, registry, args.contacts, False),
+                                contact_episodes(run_dir, registry, args.contacts, True))
 
 
 def report(run: Run, run_dir: Path, fit: dict) -> None:
