@@ -83,7 +83,7 @@ class PurePursuitExpert:
 
 def _safe_steer(u, steer_n: float, c: ExpertConfig) -> float:
     """The steering (normalised) closest to steer_n whose constant-steer arc of c.horizon m keeps
-    the robot's footprint on the walkable map (the longest-lasting arc when none does).
+    the robot's footprint on the walkable map (steer_n itself when none does).
 
     Pure pursuit cuts corners and A* ignores the turning circle (wheelbase / tan(max steer),
     1.4 m): around an obstacle's corner or into a narrow spur the pursued arc can leave the map
