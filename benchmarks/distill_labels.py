@@ -31,13 +31,8 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import Run, add_run_args  # noqa: E402
 
-from dataclasses import replace  # noqa: E402
-
-import gymnasium as gym  # noqa: E402
-
 from vid2sim.training.distill import Batch  # noqa: E402
-from vid2sim.training.evaluate import (EvalConfig, eval_env_config, held_out_scenes, load_policy,  # noqa: E402
-                                       run_observation_kwargs)
+from vid2sim.training.evaluate import EvalConfig, held_out_scenes, load_policy, make_eval_env  # noqa: E402
 from vid2sim.training.wrappers import TeacherLabels  # noqa: E402
 from vid2sim.training.run_files import policy_path  # noqa: E402
 from vid2sim.training.student import StudentPolicy  # noqa: E402
@@ -81,13 +76,11 @@ def contact_episodes(run_dir: Path, registry: str, trials: int, rescue: bool) ->
     """Held-out episodes of the run's student with teacher labels beside it (see the module docs)."""
     saved = json.loads((run_dir / "config.json").read_text())
     checkouts = saved.get("env_kwargs", {}).get("checkout_root", str(run_dir / "scenes"))
-    conf = EvalConfig(registry=registry, policy=str(run_dir), trials=trials, max_steps=600, checkout_root=checkouts)
-    env_id, env_conf = eval_env_config(conf)
-    comfort = saved["distill"].get("teacher_comfort", 0.0)
-    env_conf = replace(env_conf, episode=replace(env_conf.episode, expert_comfort=comfort))
+    comfort = saved["distill"].get("teacher_comfort", 0.0)  # the teacher's route as in training
+    conf = EvalConfig(registry=registry, policy=str(run_dir), trials=trials, max_steps=600, checkout_root=checkouts,
+                      env_kwargs={"episode": {"expert_comfort": comfort}})
     scenes = held_out_scenes(conf)
-    env = TeacherLabels(gym.make(env_id, registry=registry, scenes=scenes, config=env_conf,
-                                 checkout_root=conf.checkout_root, **run_observation_kwargs(conf.policy)))
+    env = TeacherLabels(make_eval_env(conf, scenes))
     act, _ = load_policy(conf.policy, conf.seed)
     failures, before_contact = 0, []
     for sid in scenes:

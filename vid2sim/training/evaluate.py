@@ -231,16 +231,21 @@ def summarize(records: list[EpisodeRecord], scenes: list[str]) -> tuple[dict[str
     return metrics, per_scene
 
 
+def make_eval_env(config: EvalConfig, scenes: list[str]) -> gym.Env:
+    """The evaluation env over `scenes` (`eval_env_config`; the policy's observation arguments and
+    `config.env_kwargs` on top)."""
+    env_id, env_conf = eval_env_config(config)
+    return gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
+                    checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None,
+                    **{**run_observation_kwargs(config.policy), **config.env_kwargs})
+
+
 def evaluate(config: EvalConfig, progress: Optional[Callable[[int, int], None]] = None) -> EvalReport:
     """Run `trials` episodes on every test scene and aggregate the metrics with CIs."""
     scenes = held_out_scenes(config)
     if not scenes:
         raise ValueError("no test scenes: the registry split has an empty test set")
-    env_id, env_conf = eval_env_config(config)
-    env = gym.make(env_id, registry=config.registry, scenes=scenes, config=env_conf,
-                   checkout_root=config.checkout_root, render_mode="rgb_array" if config.record else None,
-                   **{**run_observation_kwargs(config.policy), **config.env_kwargs})
-    env = with_recording(env, config)
+    env = with_recording(make_eval_env(config, scenes), config)
     act, on_reset = load_policy(config.policy, config.seed)
     records, scene_of = [], []
     total = len(scenes) * config.trials
