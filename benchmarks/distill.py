@@ -80,7 +80,7 @@ def distill_config(args) -> DistillConfig:
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
-                   weight_decay=args.weight_decay,
+                   teacher_lookahead=args.teacher_lookahead, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
                    depth_weight=args.depth_weight, ema_decay=args.ema_decay, augment=args.augment,
                    student=student)
@@ -259,6 +259,8 @@ def main() -> None:
                     help="m the teacher's route keeps from blocked cells where there is room (0: the shortest route)")
     ap.add_argument("--teacher-replan", type=float, default=DistillConfig.teacher_replan,
                     help="m off its path at which the teacher re-plans (0: at every state)")
+    ap.add_argument("--teacher-lookahead", type=float, default=DistillConfig.teacher_lookahead,
+                    help="m ahead on its route the teacher's pure pursuit aims")
     ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,

@@ -83,6 +83,9 @@ class DistillConfig:
     # m off its path at which the teacher re-plans from the robot's position (training/wrappers.py
     # `TeacherLabels`; 0: at every state, so a label depends on the state alone; inf: never)
     teacher_replan: float = 0.3
+    # m ahead on its route the teacher's pure pursuit aims (envs/expert.py `ExpertConfig.lookahead`): the
+    # steering gain falls with its square, so a longer one labels small offsets from the route with gentler turns
+    teacher_lookahead: float = 1.0
     # the training envs' per-episode image augmentation (exposure, tint, fog, rain, snow; envs/augment.py).
     # Off: held-out SR 0.70 against 0.63 with it, 3 seeds (docs/studies/pixel_distillation.md); the
     # evaluation protocol renders without it. Env arguments given (`env_kwargs["augment"]`) win.

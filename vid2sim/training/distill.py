@@ -214,7 +214,7 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     grid = DEPTH_GRID if config.distill.student.depth_target else None
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
                     config.stuck_steps, teacher=True, teacher_clearance_rays=rays, teacher_depth_grid=grid,
-                    teacher_replan=config.distill.teacher_replan)
+                    teacher_replan=config.distill.teacher_replan, teacher_lookahead=config.distill.teacher_lookahead)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
 
 

@@ -42,7 +42,7 @@ from typing import Any, Optional
 import gymnasium as gym
 import numpy as np
 
-from vid2sim.envs.expert import PurePursuitExpert
+from vid2sim.envs.expert import ExpertConfig, PurePursuitExpert
 from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.sensing import RAY_HEIGHT, camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
 
@@ -104,7 +104,7 @@ class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
     def __init__(self, env: gym.Env, replan_distance: float = 0.3, clearance_rays: int = 0,
-                 depth_grid: Optional[tuple[int, int]] = None) -> None:
+                 depth_grid: Optional[tuple[int, int]] = None, lookahead: float = ExpertConfig.lookahead) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
             raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
@@ -113,7 +113,7 @@ class TeacherLabels(gym.Wrapper):
             raise ValueError(f"clearance_rays must be >= 0, got {clearance_rays}")
         if not replan_distance >= 0:
             raise ValueError(f"replan_distance must be >= 0 (inf: never), got {replan_distance}")
-        self.expert = PurePursuitExpert()
+        self.expert = PurePursuitExpert(ExpertConfig(lookahead=lookahead))
         self.replan_distance = replan_distance
         self.replans = 0
         self.clearance_angles = None
