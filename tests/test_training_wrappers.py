@@ -15,6 +15,7 @@ from typer.testing import CliRunner
 from vid2sim.cli.app import app
 from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.envs.physics import RobotState
+from vid2sim.formats.episode_trace import read_trace
 from vid2sim.training.config import SACConfig, TrainConfig
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.sac import train
@@ -100,7 +101,8 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
                                    "--scenes", SCENE, "--trials", "2", "--record", "1", "--record-dir", str(out),
                                    "--privileged", "--out", str(tmp_path / "report.json")])
     assert res.exit_code == 0, res.output
-    assert sorted(p.name for p in out.iterdir()) == [f"{SCENE}-trial0.mp4"]
+    # the video, and beside it the episode's trace (poses, contacts, what the map shows)
+    assert sorted(p.name for p in out.iterdir()) == [f"{SCENE}-trial0.mp4", f"{SCENE}-trial0.trace.json"]
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["videos"] == [str(out / f"{SCENE}-trial0.mp4")]
     cap = cv2.VideoCapture(str(out / f"{SCENE}-trial0.mp4"))
@@ -109,6 +111,8 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
     cap.release()
     assert ok and frames == report["records"][0]["steps"] + 1  # the reset frame + one per step
     assert frame.std() > 5  # the camera view and the map, not a blank frame
+    trace = read_trace(out / f"{SCENE}-trial0.trace.json")
+    assert trace.scene_id == SCENE and trace.steps == frames  # a pose per frame: the reset one + one per step
 
 
 @pytest.mark.parametrize("warmup,bc_weight,ent", [("expert", 0.0, "auto"), ("random", 0.0, "auto"),
@@ -183,13 +187,14 @@ def test_teacher_clearance_reads_the_view_left_to_right(street_registry, tmp_pat
     env.close()
 
 
-def teacher_after_drift(registry, checkouts, replan: float, drift_steps: int = 12):
+def teacher_after_drift(registry, checkouts, replan: float, drift_steps: int = 12, lookahead: float = 1.0):
     """(label after driving a left drift from seed 0's start, label of a fresh teacher put at that pose)."""
     from vid2sim.training.wrappers import TeacherLabels
 
     def make():
         return TeacherLabels(gym.make("vid2sim/PointNav-v0", registry=str(registry), scenes=SCENE, training=False,
-                                      fidelity="exact", checkout_root=str(checkouts)), replan_distance=replan)
+                                      fidelity="exact", checkout_root=str(checkouts)), replan_distance=replan,
+                             lookahead=lookahead)
     driven, fresh = make(), make()
     driven.reset(seed=0)
     for _ in range(drift_steps):
@@ -218,4 +223,19 @@ def test_teacher_replanning_at_every_state_labels_the_state_alone(street_registr
     env = gym.make("vid2sim/PointNav-v0", registry=str(street_registry), scenes=SCENE, checkout_root=str(tmp_path))
     with pytest.raises(ValueError, match="replan_distance"):
         TeacherLabels(env, replan_distance=-1.0)
+    env.close()
+
+
+def test_teacher_with_a_longer_lookahead_steers_back_more_gently(street_registry, tmp_path):
+    """Off the route after a left drift, a teacher aiming 2 m ahead steers back the same way as the
+    default one (1 m) with less lock: pure pursuit's gain falls with the look-ahead distance."""
+    from vid2sim.ranges import RangeError
+    from vid2sim.training.wrappers import TeacherLabels
+    near, _ = teacher_after_drift(street_registry, tmp_path, 0.3, drift_steps=10)
+    far, _ = teacher_after_drift(street_registry, tmp_path, 0.3, drift_steps=10, lookahead=2.0)
+    assert near[1] < -0.3 and far[1] < 0  # both steer right, back to the route
+    assert abs(far[1]) < 0.8 * abs(near[1])
+    env = gym.make("vid2sim/PointNav-v0", registry=str(street_registry), scenes=SCENE, checkout_root=str(tmp_path))
+    with pytest.raises(RangeError, match="lookahead"):
+        TeacherLabels(env, lookahead=0.0)
     env.close()
