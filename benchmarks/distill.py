@@ -76,7 +76,7 @@ def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
                             channels=tuple(args.channels),
                             clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
-                            depth_target=args.depth_target)
+                            depth_target=args.depth_target, vector_history=args.vector_history)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
@@ -251,6 +251,8 @@ def main() -> None:
     ap.add_argument("--channels", type=int, nargs=4, default=list(StudentConfig.channels), metavar="C",
                     help="student: the four conv widths of its frame encoder")
     ap.add_argument("--frame-stride", type=int, default=1, help="student: every k-th stacked frame")
+    ap.add_argument("--vector-history", type=int, default=StudentConfig.vector_history,
+                    help="student: latest goal-vector entries it reads (1: only the current one)")
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
     ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,
                     help="random-shift augmentation in student pixels (0: off)")

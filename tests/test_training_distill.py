@@ -13,6 +13,7 @@ import ray
 import torch
 
 from tests.conftest import PROJECT_ROOT
+from vid2sim.ranges import RangeError
 from vid2sim.training.config import DistillConfig, TrainConfig
 from vid2sim.training.distill import (DEPTH_GRID, STUDENT_NAME, Batch, Dataset, DistillError, action_loss,
                                       ema_decay_at, env_specs, fit, make_optimizer, scene_groups, train_distill)
@@ -121,6 +122,31 @@ def test_frame_stride_picks_every_kth_frame_back_from_the_latest():
     student = StudentPolicy(StudentConfig(frames=3, frame_stride=2, pool=1), (6, 1, 4, 4), (6, 2))
     image = torch.arange(6, dtype=torch.uint8).reshape(1, 6, 1, 1, 1).expand(1, 6, 1, 4, 4)
     assert student.preprocess(image)[0, :, 0, 0, 0].tolist() == [1.0, 3.0, 5.0]
+
+
+def test_a_short_vector_history_reads_only_the_latest_goal_vectors_and_exports(tmp_path):
+    """vector_history 1: the older goal vectors (which reveal the steering just applied) change nothing,
+    the latest one does; the exported graph takes the env's whole [6, 2] history and agrees."""
+    torch.manual_seed(0)
+    student = StudentPolicy(StudentConfig(**{**TINY.to_dict(), "vector_history": 1}), (6, 3, 72, 128), (6, 2)).eval()
+    image = torch.randint(0, 256, (3, 6, 3, 72, 128), dtype=torch.uint8)
+    vector = torch.randn(3, 6, 2)
+    older = vector.clone()
+    older[:, :-1] = torch.randn(3, 5, 2)
+    latest = vector.clone()
+    latest[:, -1] += 1.0
+    with torch.no_grad():
+        base = student(image, vector)
+        torch.testing.assert_close(student(image, older), base)
+        assert (student(image, latest) - base).abs().max() > 1e-4
+    student.save(tmp_path / "student.pt")
+    again = StudentPolicy.load(tmp_path / "student.pt")
+    with torch.no_grad():
+        torch.testing.assert_close(again(image, vector), base)
+    with pytest.raises(ValueError, match="latest 6"):
+        StudentPolicy(StudentConfig(**{**TINY.to_dict(), "vector_history": 6}), (6, 3, 72, 128), (3, 2))
+    with pytest.raises(RangeError, match="vector_history"):
+        StudentConfig(vector_history=0)
 
 
 def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():

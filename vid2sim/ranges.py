@@ -72,12 +72,12 @@ COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_st
                     r"ransac_iters|max_width|sh_increase_every|checkpoint_every|every|"
                     r"opacity_reset_every|num_planes|ncc_window|ncc_patch|ncc_stride|normal_pca_window|"
                     r"pixel_stride|views|cell_size|steps_per_round|updates_per_round|max_samples|"
-                    r"train_max_steps|frames|frame_stride|pool|frame_dim|vector_dim|hidden|image_dim|train_freq|"
+                    r"train_max_steps|frames|frame_stride|vector_history|pool|frame_dim|vector_dim|hidden|image_dim|train_freq|"
                     r"gradient_steps|buffer_size|max_steps|seeds|counts|episodes|max_rows|"
                     r"max_gaussians|max_init_points|target_faces|visual_target_faces|net_arch|channels|"
                     r"consistency_views|min_frames|min_ground_points|stuck_steps|eval_max_steps|train_scenes|"
                     r"n_steers|n_splats|min_chars|block_px)$")
-UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "sh_degree": 3, "port": 65535,
+UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "vector_history": 6, "sh_degree": 3, "port": 65535,
          "vfov_deg": 179, "max_steer_deg": 89, "max_tilt_deg": 90, "ground_normal_deg": 90,
          "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
          # sizes that decide an allocation (an image, a frame stack) are capped too
