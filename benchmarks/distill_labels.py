@@ -2,6 +2,7 @@
 
     python benchmarks/distill_labels.py RUN_DIR [RUN_DIR ...] [--rounds 4]
     python benchmarks/distill_labels.py RUN_DIR --contacts 5 --registry ROOT/registry
+    python benchmarks/distill_labels.py RUN_DIR --history-probe
 
 Reads a distillation run folder (`vid2sim train --method distill`): its final student
 (`student.pt`, the weight average when the run kept one) and the labelled states of its last
@@ -17,6 +18,13 @@ beside the student (`TeacherLabels`, the run's comfortable route), twice: the st
 the student with the teacher taking the wheel at the first contact. It prints, per failed
 episode, the student's and the teacher's steering over the 15 steps before the first contact,
 and both runs' failures: what a rescue after the contact would win.
+
+`--history-probe` measures how much of the teacher's steering label the goal-vector history alone
+predicts (the observation's last 1, 2 and 6 entries of distance and heading to the goal): a small
+MLP fitted on four fifths of a round's states, R^2 on the rest, for round 0 (the teacher drives)
+and for the last `--rounds` rounds (the student drives). Two entries give the heading change of
+the last step, i.e. the steering just applied: where that predicts the label, a student can copy
+its last steering instead of reading the image.
 """
 
 from __future__ import annotations
@@ -72,6 +80,43 @@ def label_fit(run_dir: Path, rounds: int) -> dict:
             "label_var": float(label.var()), "full_lock_share": float(np.mean(np.abs(label) >= 0.9))}
 
 
+def history_probe(run_dir: Path, rounds: int, updates: int = 3000, seed: int = 0) -> list[dict]:
+    """R^2 of the steering label from the latest k goal vectors, k = 1, 2, 6 (see the module docs)."""
+    files = sorted((run_dir / "data").glob("round_*.npz"))
+    rows = []
+    for name, chosen in (("round 0 (teacher drives)", files[:1]), (f"last {rounds} rounds", files[-rounds:])):
+        batches = [Batch.load(f) for f in chosen]
+        vectors = np.concatenate([b.vectors for b in batches])  # [N, 6, 2]
+        label = np.concatenate([b.actions for b in batches])[:, 1]  # [N]
+        order = np.random.default_rng(seed).permutation(len(label))
+        train, test = order[: len(order) * 4 // 5], order[len(order) * 4 // 5:]
+        for k in (1, 2, 6):
+            pred = _fit_mlp(vectors[:, -k:].reshape(len(label), -1), label, train, test, updates, seed)
+            r2 = 1.0 - float(np.mean((pred - label[test]) ** 2) / label[test].var())
+            rows.append({"states": name, "vector_history": k, "r2": r2, "label_var": float(label[test].var())})
+    return rows
+
+
+def _fit_mlp(x: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray, updates: int,
+             seed: int) -> np.ndarray:
+    """A 2 x 128 MLP regressing y [N] from standardised x [N, D] on `train`; predictions on `test`."""
+    torch.manual_seed(seed)
+    xs = torch.from_numpy(((x - x[train].mean(0)) / (x[train].std(0) + 1e-6)).astype(np.float32))
+    ys = torch.from_numpy(y.astype(np.float32))
+    net = torch.nn.Sequential(torch.nn.Linear(x.shape[1], 128), torch.nn.ReLU(), torch.nn.Linear(128, 128),
+                              torch.nn.ReLU(), torch.nn.Linear(128, 1))
+    opt = torch.optim.Adam(net.parameters(), 1e-3)
+    rows = torch.from_numpy(train)
+    for _ in range(updates):
+        idx = rows[torch.randint(len(rows), (256,))]
+        loss = (net(xs[idx])[:, 0] - ys[idx]).square().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        return net(xs[torch.from_numpy(test)])[:, 0].numpy()
+
+
 def contact_episodes(run_dir: Path, registry: str, trials: int, rescue: bool) -> dict:
     """Held-out episodes of the run's student with teacher labels beside it (see the module docs)."""
     saved = json.loads((run_dir / "config.json").read_text())
@@ -123,11 +168,19 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=4, help="the last this many DAgger rounds")
     ap.add_argument("--contacts", type=int, default=0, help="held-out episodes per street to drive (0: none)")
     ap.add_argument("--registry", default=None, help="with --contacts: the registry the run trained on")
+    ap.add_argument("--history-probe", action="store_true",
+                    help="also: how much of the labels the goal-vector history alone predicts")
     add_run_args(ap)
     args = ap.parse_args()
     with Run("distill_labels", args) as run:
         for run_dir in args.runs:
             report(run, run_dir, label_fit(run_dir, args.rounds))
+            if args.history_probe:
+                for row in history_probe(run_dir, args.rounds):
+                    print(f"  {row['states']}: steering label from the latest {row['vector_history']} goal "
+                          f"vectors: R^2 {row['r2']:.3f} (label variance {row['label_var']:.3f})")
+                    run.record(f"{run_dir.name} {row['states']}", f"r2_from_{row['vector_history']}_goal_vectors",
+                               row["r2"], "", {"label_var": row["label_var"]})
             if args.contacts:
                 registry = args.registry or json.loads((run_dir / "config.json").read_text())["registry"]
                 report_contacts(run, run_dir, contact_episodes(run_dir, registry, args.contacts, False),
