@@ -15,9 +15,9 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
 - the latest `vector_history` entries of the goal-vector history (default all 6: 12 numbers, scaled
   as `NavCNN`) through a small MLP. Two entries reveal the heading change of the last step, that is
   the steering just applied: where the teacher drove (DAgger's first rounds) it predicts the
-  teacher's next label almost alone (R^2 0.84 on the first round's states, 0.10 from the latest
-  entry alone), the copycat shortcut of behaviour cloning from observation histories; 1 reads
-  only where the goal is now;
+  teacher's next label almost alone (R^2 0.82 on the first round's states, 0.08 from the latest
+  entry alone; `benchmarks/distill_labels.py --history-probe`), the copycat shortcut of behaviour
+  cloning from observation histories; 1 reads only where the goal is now (measured: no better);
 - an MLP head with `tanh`; optionally (`steer_bins` K > 0) the steering as a distribution over K
   evenly spaced values in [-1, 1] instead of one regressed number, learnt by cross-entropy to the
   label's two nearest bins: where the teacher turns hard left in some states and hard right in
