@@ -30,7 +30,6 @@ its last steering instead of reading the image.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -39,6 +38,7 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 from common import Run, add_run_args  # noqa: E402
 
+from vid2sim.training.config import TrainConfig  # noqa: E402
 from vid2sim.training.distill import Batch  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, held_out_scenes, load_policy, make_eval_env  # noqa: E402
 from vid2sim.training.wrappers import TeacherLabels  # noqa: E402
@@ -119,13 +119,13 @@ def _fit_mlp(x: np.ndarray, y: np.ndarray, train: np.ndarray, test: np.ndarray, 
 
 def contact_episodes(run_dir: Path, registry: str, trials: int, rescue: bool) -> dict:
     """Held-out episodes of the run's student with teacher labels beside it (see the module docs)."""
-    saved = json.loads((run_dir / "config.json").read_text())
-    checkouts = saved.get("env_kwargs", {}).get("checkout_root", str(run_dir / "scenes"))
-    comfort = saved["distill"].get("teacher_comfort", 0.0)  # the teacher's route as in training
+    saved = TrainConfig.load(run_dir / "config.json")
+    teacher = saved.distill  # the teacher as in training: its route, re-planning and look-ahead
+    checkouts = saved.env_kwargs.get("checkout_root", str(run_dir / "scenes"))
     conf = EvalConfig(registry=registry, policy=str(run_dir), trials=trials, max_steps=600, checkout_root=checkouts,
-                      env_kwargs={"episode": {"expert_comfort": comfort}})
+                      env_kwargs={"episode": {"expert_comfort": teacher.teacher_comfort}})
     scenes = held_out_scenes(conf)
-    env = TeacherLabels(make_eval_env(conf, scenes))
+    env = TeacherLabels(make_eval_env(conf, scenes), teacher.teacher_replan, lookahead=teacher.teacher_lookahead)
     act, _ = load_policy(conf.policy, conf.seed)
     failures, before_contact = 0, []
     for sid in scenes:
@@ -182,7 +182,7 @@ def main() -> None:
                     run.record(f"{run_dir.name} {row['states']}", f"r2_from_{row['vector_history']}_goal_vectors",
                                row["r2"], "", {"label_var": row["label_var"]})
             if args.contacts:
-                registry = args.registry or json.loads((run_dir / "config.json").read_text())["registry"]
+                registry = args.registry or TrainConfig.load(run_dir / "config.json").registry
                 report_contacts(run, run_dir, contact_episodes(run_dir, registry, args.contacts, False),
                                 contact_episodes(run_dir, registry, args.contacts, True))
 

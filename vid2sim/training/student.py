@@ -37,6 +37,7 @@ small preprocessed frames and augments them (random shifts) before `act`; `forwa
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 from typing import Optional
 
@@ -112,7 +113,7 @@ class StudentPolicy(nn.Module):
         if config.vector_history > self.vector_shape[0]:
             raise ValueError(f"the observation stacks {self.vector_shape[0]} goal vectors, the student wants the "
                              f"latest {config.vector_history}")
-        n_vec = config.vector_history * int(torch.tensor(self.vector_shape[1:]).prod())
+        n_vec = config.vector_history * math.prod(self.vector_shape[1:])
         self.register_buffer("vector_scale", torch.tensor(VECTOR_SCALE, dtype=torch.float32).repeat(n_vec // 2))
         self.vector_head = nn.Sequential(nn.Linear(n_vec, config.vector_dim), nn.ReLU())
         n_out = 1 + config.steer_bins if config.steer_bins else 2  # speed + steering bins, or speed + steering
