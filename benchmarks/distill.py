@@ -42,7 +42,7 @@ from vid2sim.registry import Registry  # noqa: E402
 from vid2sim.registry.split import SplitConfig, make_split  # noqa: E402
 from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
 from vid2sim.training.distill import STUDENT_NAME, train_distill  # noqa: E402
-from vid2sim.training.ensemble import build_ensemble  # noqa: E402
+from vid2sim.training.ensemble import build_ensemble, load_student  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
 from vid2sim.training.student import StudentConfig  # noqa: E402
@@ -76,7 +76,8 @@ def distill_config(args) -> DistillConfig:
     student = StudentConfig(frames=args.frames, frame_stride=args.frame_stride, pool=args.pool,
                             channels=tuple(args.channels),
                             clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
-                            depth_target=args.depth_target, vector_history=args.vector_history)
+                            depth_target=args.depth_target, vector_history=args.vector_history,
+                            steer_gain=args.steer_gain)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
@@ -171,6 +172,8 @@ def run_heldout(args, run: Run) -> None:
     report_pooled(run, successes, "all seeds", {"seeds": list(args.seeds), "env_steps": args.steps})
     if args.ensemble:
         run_ensembles(args, run, reg, trained)
+    for gain in args.eval_steer_gains:
+        run_steer_gain(args, run, reg, trained, gain)
 
 
 def evaluate_policy(args, run: Run, reg: str, policy_dir: Path, name: str, budget: dict,
@@ -211,13 +214,32 @@ def run_ensembles(args, run: Run, reg: str, trained: list[tuple[Path, dict]]) ->
     report_pooled(run, successes, f"all ensembles of {k}", {"seeds": list(args.seeds), "env_steps": args.steps})
 
 
-def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict) -> None:
+def run_steer_gain(args, run: Run, reg: str, trained: list[tuple[Path, dict]], gain: float) -> None:
+    """The trained students driving with steering gain `gain` (`StudentConfig.steer_gain`, their weights
+    unchanged; written to RUN_gainG/student.pt): held-out SR, and SR on training streets with --train-eval,
+    which is where a gain is chosen without looking at the held-out streets."""
+    successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
+    for run_dir, budget in trained:
+        folder = run_dir.with_name(f"{run_dir.name}_gain{gain:g}")
+        folder.mkdir(exist_ok=True)
+        load_student(run_dir / STUDENT_NAME).with_steer_gain(gain).save(folder / STUDENT_NAME)
+        (folder / "config.json").write_text((run_dir / "config.json").read_text())  # its training streets
+        name = f"seed {budget['seed']}, steer gain {gain:g}"
+        evaluate_policy(args, run, reg, folder, name, {**budget, "steer_gain": gain}, successes)
+        if args.train_eval:
+            eval_training_streets(args, run, reg, folder, {**budget, "steer_gain": gain}, name)
+    report_pooled(run, successes, f"all seeds, steer gain {gain:g}",
+                  {"seeds": list(args.seeds), "env_steps": args.steps, "steer_gain": gain})
+
+
+def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict, name: str = "") -> None:
     """The held-out protocol on the first `--train-eval` of the run's own training streets: SR there
     against held-out SR separates what the student failed to learn from what it failed to transfer."""
     scenes = TrainConfig.load(run_dir / "config.json").scene_ids[:args.train_eval]
     rep = evaluate_saved(eval_config(args, reg, run_dir, "static", scenes),
                          run_dir / "eval_pointnav_training_streets.json")
-    record_eval(run, f"pointnav seed {budget['seed']}, {len(scenes)} training streets", rep, budget)
+    name = name or f"seed {budget['seed']}"
+    record_eval(run, f"pointnav {name}, {len(scenes)} training streets", rep, budget)
 
 
 def run_study_bench(args, run: Run) -> None:
@@ -263,6 +285,10 @@ def main() -> None:
                     help="m off its path at which the teacher re-plans (0: at every state)")
     ap.add_argument("--teacher-lookahead", type=float, default=DistillConfig.teacher_lookahead,
                     help="m ahead on its route the teacher's pure pursuit aims")
+    ap.add_argument("--steer-gain", type=float, default=StudentConfig.steer_gain,
+                    help="student: steering gain when it drives (collection and evaluation), not in its loss")
+    ap.add_argument("--eval-steer-gains", type=float, nargs="*", default=[],
+                    help="heldout: also evaluate the trained students driving with each of these steering gains")
     ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,

@@ -149,6 +149,35 @@ def test_a_short_vector_history_reads_only_the_latest_goal_vectors_and_exports(t
         StudentConfig(vector_history=0)
 
 
+def test_a_steering_gain_turns_harder_when_driving_not_in_the_loss_and_exports(tmp_path):
+    """steer_gain g: the driven steering is tanh(g x the pre-activation) (sign kept, larger, in [-1, 1]),
+    the speed and the learner's outputs unchanged; a saved copy and the exported graph drive with it."""
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
+    image = torch.randint(0, 256, (5, 6, 3, 72, 128), dtype=torch.uint8)
+    vector = torch.randn(5, 6, 2)
+    harder = student.with_steer_gain(2.5)
+    assert student.config.steer_gain == 1.0 and harder.config.steer_gain == 2.5
+    with torch.no_grad():
+        base, driven = student(image, vector), harder(image, vector)
+        torch.testing.assert_close(driven[:, 0], base[:, 0])
+        torch.testing.assert_close(driven[:, 1], torch.tanh(2.5 * torch.atanh(base[:, 1])), atol=1e-5, rtol=1e-4)
+        assert (driven[:, 1].abs() > base[:, 1].abs()).all() and (driven[:, 1].sign() == base[:, 1].sign()).all()
+        pre = harder.preprocess(image)
+        torch.testing.assert_close(harder.outputs(pre, vector).actions, base)  # what the loss sees
+    harder.save(tmp_path / STUDENT_NAME)
+    loaded = StudentPolicy.load(tmp_path / STUDENT_NAME)
+    with torch.no_grad():
+        torch.testing.assert_close(loaded(image, vector), driven)
+    out = export_policy(loaded, tmp_path / "export")
+    np.testing.assert_allclose(NavPolicy(out, "torch").act_stacked(image.numpy(), vector.numpy()), driven.numpy(),
+                               atol=1e-5)
+    with pytest.raises(RangeError, match="steer_gain"):
+        StudentConfig(steer_gain=0.0)
+    with pytest.raises(ValueError, match="steer_gain"):
+        StudentConfig(steer_bins=5, steer_gain=2.0)
+
+
 def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():
     frames = torch.arange(2 * 2 * 1 * 6 * 8, dtype=torch.float32).reshape(2, 2, 1, 6, 8)
     assert torch.equal(random_shift(frames, 0), frames)

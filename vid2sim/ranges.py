@@ -66,7 +66,7 @@ POSITIVE = re.compile(r"^(fps|image_fps|fallback_fps|clip_seconds|learning_rate|
                       r"max_speed|length|width|height|vfov_deg|near|far|depth_max|success_radius|step_m|"
                       r"area_spacing_m|bin_m|along_m|trunc_voxels|ground_point_cell_m|depth_max_m|timeout_s|"
                       r"resolution_m|map_resolution_m|voxel_m|scale|num_cpus_per_run|num_cpus_per_actor|coarse_scale|"
-                      r"hfov_deg|length_m|duration_s|gt_grid_resolution|lookahead|teacher_lookahead)$")
+                      r"hfov_deg|length_m|duration_s|gt_grid_resolution|lookahead|teacher_lookahead|steer_gain)$")
 COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_stack|physics_hz|control_hz|"
                     r"max_side|analysis_width|workers|max_image_size|max_num_features|overlap|num_threads|"
                     r"ransac_iters|max_width|sh_increase_every|checkpoint_every|every|"

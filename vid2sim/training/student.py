@@ -18,12 +18,16 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
   teacher's next label almost alone (R^2 0.82 on the first round's states, 0.08 from the latest
   entry alone; `benchmarks/distill_labels.py --history-probe`), the copycat shortcut of behaviour
   cloning from observation histories; 1 reads only where the goal is now (measured: no better);
-- an MLP head with `tanh`; optionally (`steer_bins` K > 0) the steering as a distribution over K
-  evenly spaced values in [-1, 1] instead of one regressed number, learnt by cross-entropy to the
-  label's two nearest bins: where the teacher turns hard left in some states and hard right in
-  others that look alike, a regressed steering averages them to straight ahead, the bins keep
-  both; the action is the probability-weighted steering of the most likely bin and its two
-  neighbours (`steer_from_logits`, in the exported graph too);
+- an MLP head with `tanh`; `steer_gain` > 1 scales the steering's pre-activation when the student
+  drives (DAgger's collection, evaluation, the export) but not in the learner's loss: a regression
+  on what the frames show only roughly answers hard-turn labels with a fraction of their size, and
+  the gain asks it to commit (measured in docs/studies/pixel_distillation.md);
+- optionally (`steer_bins` K > 0) the steering as a distribution over K evenly spaced values in
+  [-1, 1] instead of one regressed number, learnt by cross-entropy to the label's two nearest
+  bins: where the teacher turns hard left in some states and hard right in others that look alike,
+  a regressed steering averages them to straight ahead, the bins keep both; the action is the
+  probability-weighted steering of the most likely bin and its two neighbours
+  (`steer_from_logits`, in the exported graph too);
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
   clearance readings in [0, 1], trained as an auxiliary target and left out of the export;
 - optionally (`depth_target`) a 1 x 1 conv head on the latest frame's last conv map (5 x 8 at
@@ -67,6 +71,7 @@ class StudentConfig:
     clearance_rays: int = 0  # auxiliary head: the teacher's clearance over the view, K rays (0: none)
     steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
     depth_target: bool = False  # auxiliary head: the latest frame's nearest depth per cell of the last conv map
+    steer_gain: float = 1.0  # when driving: steering tanh(gain x pre-activation); the learner's loss sees gain 1
 
     def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
         if (self.frames - 1) * self.frame_stride + 1 > STACK:
@@ -77,6 +82,9 @@ class StudentConfig:
             raise ValueError(f"student channels must list 4 conv widths, got {list(self.channels)}")
         if self.steer_bins in (1, 2):
             raise ValueError(f"student steer_bins must be 0 (regressed steering) or >= 3, got {self.steer_bins}")
+        if self.steer_bins and self.steer_gain != 1.0:
+            raise ValueError(f"student steer_gain applies to a regressed steering; with steer_bins "
+                             f"{self.steer_bins} it must be 1, got {self.steer_gain}")
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -144,12 +152,13 @@ class StudentPolicy(nn.Module):
         return torch.round(x)
 
     def act(self, frames: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
-        """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> actions [B, 2]."""
-        return self.outputs(frames, vector).actions
+        """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> the actions it drives
+        with [B, 2] (steering with the config's `steer_gain`)."""
+        return self.outputs(frames, vector, self.config.steer_gain).actions
 
-    def outputs(self, frames: torch.Tensor, vector: torch.Tensor) -> "StudentOutputs":
-        """`act`'s actions, the steering logits (with steer_bins) and the clearance prediction (with the
-        clearance head), what the learner's losses need."""
+    def outputs(self, frames: torch.Tensor, vector: torch.Tensor, steer_gain: float = 1.0) -> "StudentOutputs":
+        """The actions (regressed steering tanh(steer_gain x pre-activation); the learner's losses use 1),
+        the steering logits (with steer_bins) and the clearance prediction (with the clearance head)."""
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
         maps = self.encoder[:-1](x)  # [B * frames, c4, h', w'] (the encoder without its Flatten)
@@ -158,7 +167,8 @@ class StudentPolicy(nn.Module):
         vec = self.vector_head(recent.float().flatten(1) * self.vector_scale)
         out = self.head(torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, 2] or [B, 1 + K]
         logits = out[:, 1:] if self.config.steer_bins else None
-        steering = steer_from_logits(logits, self.steer_values) if logits is not None else torch.tanh(out[:, 1])
+        steering = (steer_from_logits(logits, self.steer_values) if logits is not None
+                    else torch.tanh(steer_gain * out[:, 1]))
         actions = torch.stack([torch.tanh(out[:, 0]), steering], dim=1)  # [B, 2]
         clearance = (torch.sigmoid(self.clearance_head(per_frame[:, -1])) if self.clearance_head is not None
                      else actions.new_zeros(b, 0))  # [B, K] in [0, 1]
@@ -182,6 +192,12 @@ class StudentPolicy(nn.Module):
 
     def save(self, path) -> None:
         torch.save(self.checkpoint(), path)
+
+    def with_steer_gain(self, gain: float) -> "StudentPolicy":
+        """The same weights driving with steering gain `gain` (a copy; this student is unchanged)."""
+        ckpt = self.checkpoint()
+        ckpt["config"]["steer_gain"] = gain
+        return StudentPolicy.from_checkpoint(ckpt)
 
     @classmethod
     def load(cls, path) -> "StudentPolicy":
