@@ -91,7 +91,10 @@ class DistillConfig:
     # evaluation protocol renders without it. Env arguments given (`env_kwargs["augment"]`) win.
     augment: bool = False
     train_max_steps: int = 500  # episode limit while collecting (truncation); evaluation keeps the env's 3000
-    threads: int = 0  # torch threads of the learner (0: torch's default)
+    # torch and numba threads of the learner and its in-process envs (0: the libraries' defaults, one per
+    # core). 1: a student's fit costs half the CPU-seconds of two threads, its collection 0.57 of them, at
+    # the same wall time for the collection (benchmarks/distill_cost.py)
+    threads: int = 1
     student: StudentConfig = field(default_factory=StudentConfig)
 
     def __post_init__(self) -> None:

@@ -42,6 +42,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
+import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -421,6 +422,12 @@ def make_averaged(student: StudentPolicy, decay: float, state: Optional[dict] = 
     return averaged.eval()
 
 
+def limit_threads(threads: int) -> None:
+    """Bound torch's and numba's thread pools of this process to `threads`."""
+    torch.set_num_threads(threads)
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+
+
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
                     num_timesteps: int, history: list[dict], rng: np.random.Generator,
                     averaged: Optional[AveragedModel] = None) -> None:
@@ -443,7 +450,7 @@ def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] 
     """Train (or resume) one distillation run; see the module docstring for the steps."""
     d = config.distill
     if d.threads:
-        torch.set_num_threads(d.threads)
+        limit_threads(d.threads)
     config.scene_ids = resolve_scenes(config)
     run = write_run_folder(config)
     (run / "data").mkdir(exist_ok=True)

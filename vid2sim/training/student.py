@@ -113,7 +113,9 @@ class StudentPolicy(nn.Module):
             raise ValueError(f"the observation stacks {stack} frames, the student wants {config.frames} "
                              f"every {config.frame_stride}")
         self.channels = channels
-        self.encoder = frame_encoder(channels, config.channels)
+        # channels-last conv weights: the CPU convolutions run ~25 % faster forward and backward
+        # (benchmarks/student_fit.py), the values are the same
+        self.encoder = frame_encoder(channels, config.channels).to(memory_format=torch.channels_last)
         with torch.no_grad():
             probe = self.preprocess(torch.zeros(1, *self.image_shape, dtype=torch.uint8))
             n_flat = self.encoder(probe[:, 0].float()).shape[1]
@@ -244,8 +246,6 @@ def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator | No
     padded = F.pad(frames.reshape(b, k * c, h, w), (pad, pad, pad, pad), mode="replicate")
     dx = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
     dy = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
-    rows = (dy[:, None] + torch.arange(h)[None]).reshape(b, 1, h, 1)  # [B, 1, h, 1]
-    cols = (dx[:, None] + torch.arange(w)[None]).reshape(b, 1, 1, w)  # [B, 1, 1, w]
-    batch = torch.arange(b).reshape(b, 1, 1, 1)
-    chan = torch.arange(k * c).reshape(1, k * c, 1, 1)
-    return padded[batch, chan, rows, cols].reshape(b, k, c, h, w)
+    # one slice per sample: ~6x cheaper than one gather over broadcast index grids
+    crops = [padded[i, :, y:y + h, x:x + w] for i, (y, x) in enumerate(zip(dy.tolist(), dx.tolist()))]
+    return torch.stack(crops).reshape(b, k, c, h, w)
