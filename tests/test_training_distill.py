@@ -7,6 +7,7 @@ import json
 import os
 
 import gymnasium as gym
+import numba
 import numpy as np
 import pytest
 import ray
@@ -116,6 +117,33 @@ def test_preprocessed_inputs_give_the_deployed_actions():
                                       student(image, vector).numpy())
     expected = image[:, -2:].float().reshape(8, 3, 36, 2, 64, 2).mean(dim=(3, 5)).round().reshape(4, 2, 3, 36, 64)
     np.testing.assert_array_equal(stored, expected.numpy().astype(np.uint8))
+
+
+def test_channels_last_encoder_agrees_with_the_contiguous_one_and_survives_a_checkpoint():
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
+    conv = student.encoder[0].weight
+    assert conv.is_contiguous(memory_format=torch.channels_last) and not conv.is_contiguous()
+    plain = StudentPolicy.from_checkpoint(student.checkpoint()).eval()
+    plain.encoder.to(memory_format=torch.contiguous_format)  # the reference layout
+    frames = torch.randint(0, 256, (5, *student.input_shape)).float()  # [5, 2, 3, 36, 64]
+    vector = torch.randn(5, 6, 2)
+    with torch.no_grad():
+        torch.testing.assert_close(student.act(frames, vector), plain.act(frames, vector), atol=1e-5, rtol=0)
+        loaded = StudentPolicy.from_checkpoint(student.checkpoint()).eval()
+        assert loaded.encoder[0].weight.is_contiguous(memory_format=torch.channels_last)
+        assert torch.equal(loaded.act(frames, vector), student.act(frames, vector))
+
+
+def test_training_runs_on_the_configured_threads_and_gives_the_process_its_own_back(street_registry, tmp_path):
+    before = min(2, numba.config.NUMBA_NUM_THREADS)
+    torch.set_num_threads(2)
+    numba.set_num_threads(before)
+    inside = []
+    train_distill(tiny_config(street_registry, tmp_path / "run", 60),
+                  log=lambda row: inside.append((torch.get_num_threads(), numba.get_num_threads())))
+    assert inside == [(1, 1)]  # DistillConfig.threads = 1
+    assert (torch.get_num_threads(), numba.get_num_threads()) == (2, before)
 
 
 def test_frame_stride_picks_every_kth_frame_back_from_the_latest():

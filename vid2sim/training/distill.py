@@ -38,9 +38,10 @@ from __future__ import annotations
 import json
 import math
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence, Union
+from typing import Any, Iterator, Optional, Sequence, Union
 
 import numba
 import numpy as np
@@ -422,10 +423,21 @@ def make_averaged(student: StudentPolicy, decay: float, state: Optional[dict] = 
     return averaged.eval()
 
 
-def limit_threads(threads: int) -> None:
-    """Bound torch's and numba's thread pools of this process to `threads`."""
+@contextmanager
+def limit_threads(threads: int) -> Iterator[None]:
+    """Bound torch's and numba's thread pools (numba's: of this thread) to `threads` while inside,
+    then restore them; 0 leaves them as they are."""
+    if threads <= 0:
+        yield
+        return
+    before = torch.get_num_threads(), numba.get_num_threads()
     torch.set_num_threads(threads)
     numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before[0])
+        numba.set_num_threads(before[1])
 
 
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
@@ -447,10 +459,14 @@ def load_checkpoint(run: Path) -> dict:
 
 
 def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] = None) -> TrainResult:
-    """Train (or resume) one distillation run; see the module docstring for the steps."""
+    """Train (or resume) one distillation run, on `config.distill.threads` threads; see the module
+    docstring for the steps."""
+    with limit_threads(config.distill.threads):
+        return _train_rounds(config, resume, log)
+
+
+def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> TrainResult:
     d = config.distill
-    if d.threads:
-        limit_threads(d.threads)
     config.scene_ids = resolve_scenes(config)
     run = write_run_folder(config)
     (run / "data").mkdir(exist_ok=True)
