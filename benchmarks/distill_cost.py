@@ -6,9 +6,10 @@
 Fit: `training/distill.fit` of the default student (`StudentConfig()`: 2 frames pooled to 36 x 64)
 for --updates batches of `DistillConfig.batch_size` drawn from random frames (the cost does not
 depend on the pixels), per thread count, with the channels-last conv weights the student is built
-with and with plain contiguous ones. Collection: the `Collector` stepping --envs in-process
-training envs of the registry's training streets (exact render fidelity, the teacher labelling every
-state), the student driving, per teacher re-planning distance (0.3 m, the default, and 0: at every
+with and with plain contiguous ones. Collection: the `Collector` stepping --envs in-process training envs
+of the registry's training streets (exact render fidelity, the teacher labelling every state),
+the teacher driving (its episodes are as long as a trained student's; an untrained one is stuck
+and reset every few steps), per teacher re-planning distance (0.3 m, the default, and 0: at every
 state) and thread count; the first --warmup steps (worlds built, kernels compiled) are not counted.
 A thread count bounds torch and numba (`training/distill.limit_threads`, `DistillConfig.threads`).
 Per round (`DistillConfig.steps_per_round` env steps and `updates_per_round` updates): the
@@ -67,7 +68,8 @@ def measure_fit(threads: int, channels_last: bool, updates: int, seed: int = 0) 
 
 
 def measure_collection(config: TrainConfig, threads_list: list[int], steps: int, warmup: int) -> dict[int, dict]:
-    """Per thread count: CPU and wall seconds per env step of the student-driven collection."""
+    """Per thread count: CPU and wall seconds per env step of the collection, the teacher driving
+    (long episodes, as a trained student's; an untrained one is stuck and reset every few steps)."""
     env = make_vec_env(env_specs(config), 0)
     try:
         student = make_student(config, env)
@@ -75,9 +77,9 @@ def measure_collection(config: TrainConfig, threads_list: list[int], steps: int,
         out = {}
         for threads in threads_list:
             with limit_threads(threads):
-                collector.collect(warmup, 0.0, True)
+                collector.collect(warmup, 1.0, True)
                 cpu0, t0 = cpu_seconds(), time.perf_counter()
-                _, stats = collector.collect(steps, 0.0, True)
+                _, stats = collector.collect(steps, 1.0, True)
                 cpu, wall = cpu_seconds() - cpu0, time.perf_counter() - t0
             out[threads] = {"steps_per_cpu_s": stats.steps / cpu, "steps_per_s": stats.steps / wall,
                             "round_cpu_s": DistillConfig().steps_per_round * cpu / stats.steps}
@@ -122,7 +124,7 @@ def main() -> None:
                                                                       "round_cpu_s": "CPU-s"})
                 print(f"  {layout:13s} {threads} threads: {m['samples_per_cpu_s']:6.0f} samples/CPU-s "
                       f"{m['samples_per_s']:6.0f} samples/s, {m['round_cpu_s']:5.1f} CPU-s per round", flush=True)
-        print(f"collection ({args.envs} envs, exact render, student driving):")
+        print(f"collection ({args.envs} envs, exact render, the teacher driving):")
         for replan in args.replan:
             for threads, m in measure_collection(train_config(args, replan), args.threads, args.steps,
                                                  args.warmup).items():

@@ -92,8 +92,8 @@ class DistillConfig:
     augment: bool = False
     train_max_steps: int = 500  # episode limit while collecting (truncation); evaluation keeps the env's 3000
     # torch and numba threads of the learner and its in-process envs (0: the libraries' defaults, one per
-    # core). 1: a student's fit costs half the CPU-seconds of two threads, its collection 0.57 of them, at
-    # the same wall time for the collection (benchmarks/distill_cost.py)
+    # core). 1: the fit costs 1.2-1.5x and the collection 1.0-1.4x fewer CPU-seconds than on two threads,
+    # the collection no slower (benchmarks/distill_cost.py)
     threads: int = 1
     student: StudentConfig = field(default_factory=StudentConfig)
 

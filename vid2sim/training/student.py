@@ -113,8 +113,8 @@ class StudentPolicy(nn.Module):
             raise ValueError(f"the observation stacks {stack} frames, the student wants {config.frames} "
                              f"every {config.frame_stride}")
         self.channels = channels
-        # channels-last conv weights: the CPU convolutions run ~25 % faster forward and backward
-        # (benchmarks/student_fit.py), the values are the same
+        # channels-last conv weights: the fit 10-15 % cheaper on CPU (benchmarks/distill_cost.py), the
+        # same values up to float rounding
         self.encoder = frame_encoder(channels, config.channels).to(memory_format=torch.channels_last)
         with torch.no_grad():
             probe = self.preprocess(torch.zeros(1, *self.image_shape, dtype=torch.uint8))
