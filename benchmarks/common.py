@@ -68,6 +68,7 @@ import json
 import math
 import os
 import platform
+import resource
 import shlex
 import subprocess
 import sys
@@ -166,6 +167,12 @@ def command_line(argv: Optional[list[str]] = None) -> str:
     except ValueError:
         exe_s = exe.name if exe.parent.name == "bin" else str(exe)
     return shlex.join([exe_s, *(sys.argv if argv is None else argv)])
+
+
+def cpu_seconds() -> float:
+    """User + system CPU seconds this process has used so far (its threads included)."""
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    return usage.ru_utime + usage.ru_stime
 
 
 def hardware_line() -> str:

@@ -26,7 +26,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import resource
 import sys
 import time
 from dataclasses import asdict, replace
@@ -35,7 +34,7 @@ from typing import Optional
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
-from common import Run, add_run_args  # noqa: E402
+from common import Run, add_run_args, cpu_seconds  # noqa: E402
 from street_registry import build, scene_id as street_id  # noqa: E402
 
 from vid2sim.registry import Registry  # noqa: E402
@@ -47,11 +46,6 @@ from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, eval
 from vid2sim.training.rollouts import init_ray  # noqa: E402
 from vid2sim.training.student import StudentConfig  # noqa: E402
 from vid2sim.training.study import StudyConfig, aggregate, run_study  # noqa: E402
-
-
-def cpu_seconds() -> float:
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
 
 
 def registry(args) -> str:

@@ -19,7 +19,6 @@ CPU-seconds each part costs, so a training's cost is the rounds times their sum.
 from __future__ import annotations
 
 import argparse
-import resource
 import sys
 import time
 from dataclasses import replace
@@ -28,7 +27,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import numpy as np  # noqa: E402
 import torch  # noqa: E402
-from common import Run, add_run_args  # noqa: E402
+from common import Run, add_run_args, cpu_seconds  # noqa: E402
 from street_registry import build  # noqa: E402
 
 from vid2sim.training.config import DistillConfig, TrainConfig  # noqa: E402
@@ -38,11 +37,6 @@ from vid2sim.training.sac import make_vec_env, resolve_scenes  # noqa: E402
 from vid2sim.training.student import StudentPolicy  # noqa: E402
 
 IMAGE_SHAPE, VECTOR_SHAPE = (6, 3, 72, 128), (6, 2)  # the envs' observation: 6 stacked frames, 6 goal vectors
-
-
-def cpu_seconds() -> float:
-    usage = resource.getrusage(resource.RUSAGE_SELF)
-    return usage.ru_utime + usage.ru_stime
 
 
 def measure_fit(threads: int, channels_last: bool, updates: int, seed: int = 0) -> dict:
