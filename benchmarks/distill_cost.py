@@ -11,7 +11,7 @@ of the registry's training streets (exact render fidelity, the teacher labelling
 the teacher driving (its episodes are as long as a trained student's; an untrained one is stuck
 and reset every few steps), per teacher re-planning distance (0.3 m, the default, and 0: at every
 state) and thread count; the first --warmup steps (worlds built, kernels compiled) are not counted.
-A thread count bounds torch and numba (`training/distill.limit_threads`, `DistillConfig.threads`).
+A thread count bounds torch and numba (`vid2sim.threads.thread_pools`, `DistillConfig.threads`).
 Per round (`DistillConfig.steps_per_round` env steps and `updates_per_round` updates): the
 CPU-seconds each part costs, so a training's cost is the rounds times their sum.
 """
@@ -30,8 +30,9 @@ import torch  # noqa: E402
 from common import Run, add_run_args, cpu_seconds  # noqa: E402
 from street_registry import build  # noqa: E402
 
+from vid2sim.threads import thread_pools  # noqa: E402
 from vid2sim.training.config import DistillConfig, TrainConfig  # noqa: E402
-from vid2sim.training.distill import (Batch, Collector, env_specs, fit, limit_threads, make_averaged,  # noqa: E402
+from vid2sim.training.distill import (Batch, Collector, env_specs, fit, make_averaged,  # noqa: E402
                                       make_optimizer, make_student)
 from vid2sim.training.sac import make_vec_env, resolve_scenes  # noqa: E402
 from vid2sim.training.student import StudentPolicy  # noqa: E402
@@ -51,7 +52,7 @@ def measure_fit(threads: int, channels_last: bool, updates: int, seed: int = 0) 
                  rng.normal(size=(n, *VECTOR_SHAPE)).astype(np.float32),
                  rng.uniform(-1, 1, (n, 2)).astype(np.float32))
     optimizer, averaged = make_optimizer(student, d), make_averaged(student, d.ema_decay)
-    with limit_threads(threads):
+    with thread_pools(threads):
         fit(student, optimizer, data, replace(d, updates_per_round=5), rng, averaged)  # warm-up
         cpu0, t0 = cpu_seconds(), time.perf_counter()
         fit(student, optimizer, data, d, rng, averaged)
@@ -70,7 +71,7 @@ def measure_collection(config: TrainConfig, threads_list: list[int], steps: int,
         collector = Collector(env, student, config.seed)
         out = {}
         for threads in threads_list:
-            with limit_threads(threads):
+            with thread_pools(threads):
                 collector.collect(warmup, 1.0, True)
                 cpu0, t0 = cpu_seconds(), time.perf_counter()
                 _, stats = collector.collect(steps, 1.0, True)

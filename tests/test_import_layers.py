@@ -1,6 +1,6 @@
 """Import contract: the package layers only import downward, and no module cycles.
 
-Layers (low -> high): formats, versioning, ranges, vid2sim/__init__ (the base, importing each other
+Layers (low -> high): formats, versioning, ranges, threads, vid2sim/__init__ (the base, importing each other
 without cycles) < splats, registry < factory <
 envs < training < viewer < cli. splats and registry do not import each other. Inside the factory the
 stage packages only import downward too: ingest < sfm < recon < geometry < synthetic <
@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1] / "vid2sim"
-LAYERS = {"formats": 0, "versioning": 0, "bullet": 0, "ranges": 0, "": 0, "splats": 1, "registry": 1, "factory": 2,
-          "envs": 3, "training": 4, "viewer": 5, "cli": 6}
+LAYERS = {"formats": 0, "versioning": 0, "bullet": 0, "ranges": 0, "threads": 0, "": 0, "splats": 1, "registry": 1,
+          "factory": 2, "envs": 3, "training": 4, "viewer": 5, "cli": 6}
 FACTORY = {"stage_base": 0, "ingest": 1, "sfm": 2, "recon": 3, "geometry": 4, "synthetic": 5,
            "evaluation": 6, "runtime": 7, "": 7}
 FACTORY_BASE = ("vid2sim.factory.runtime.stage_cache",)

@@ -38,12 +38,10 @@ from __future__ import annotations
 import json
 import math
 import time
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Optional, Sequence, Union
+from typing import Any, Optional, Sequence, Union
 
-import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -51,6 +49,7 @@ from stable_baselines3.common.vec_env import VecEnv
 from torch.optim.swa_utils import AveragedModel
 from torch.utils.tensorboard import SummaryWriter
 
+from vid2sim.threads import thread_pools
 from vid2sim.training.config import EVICTIONS, DistillConfig, TrainConfig
 from vid2sim.training.rollouts import EnvSpec
 from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
@@ -423,23 +422,6 @@ def make_averaged(student: StudentPolicy, decay: float, state: Optional[dict] = 
     return averaged.eval()
 
 
-@contextmanager
-def limit_threads(threads: int) -> Iterator[None]:
-    """Bound torch's and numba's thread pools (numba's: of this thread) to `threads` while inside,
-    then restore them; 0 leaves them as they are."""
-    if threads <= 0:
-        yield
-        return
-    before = torch.get_num_threads(), numba.get_num_threads()
-    torch.set_num_threads(threads)
-    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before[0])
-        numba.set_num_threads(before[1])
-
-
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
                     num_timesteps: int, history: list[dict], rng: np.random.Generator,
                     averaged: Optional[AveragedModel] = None) -> None:
@@ -461,7 +443,7 @@ def load_checkpoint(run: Path) -> dict:
 def train_distill(config: TrainConfig, resume: bool = False, log: Optional[Any] = None) -> TrainResult:
     """Train (or resume) one distillation run, on `config.distill.threads` threads; see the module
     docstring for the steps."""
-    with limit_threads(config.distill.threads):
+    with thread_pools(config.distill.threads):
         return _train_rounds(config, resume, log)
 
 

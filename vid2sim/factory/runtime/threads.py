@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import os
-
-import numba
 import ray
-import torch
+
+from vid2sim.threads import set_thread_pools
 
 _assigned = 1
 
@@ -18,12 +16,7 @@ def limit_threads(cpus: float) -> int:
     if ray.is_initialized():
         n = ray.get_runtime_context().get_assigned_resources().get("CPU", cpus)
     n = max(1, int(n or 1))
-    torch.set_num_threads(n)
-    try:
-        numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
-    except ValueError:
-        pass
-    os.environ["OMP_NUM_THREADS"] = str(n)
+    set_thread_pools(n)
     _assigned = n
     return n
 
