@@ -12,13 +12,18 @@ from vid2sim.threads import set_thread_pools, thread_pools
 
 def test_thread_pools_bound_inside_and_restore_all_three_after(monkeypatch):
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    original = torch.get_num_threads(), numba.get_num_threads()
     torch.set_num_threads(2)  # both pools at two threads, as a 2-core machine starts them
     numba.set_num_threads(min(2, numba.config.NUMBA_NUM_THREADS))
     before = torch.get_num_threads(), numba.get_num_threads()
-    with thread_pools(1):
-        assert (torch.get_num_threads(), numba.get_num_threads(), os.environ["OMP_NUM_THREADS"]) == (1, 1, "1")
-    assert (torch.get_num_threads(), numba.get_num_threads()) == before
-    assert "OMP_NUM_THREADS" not in os.environ
+    try:
+        with thread_pools(1):
+            assert (torch.get_num_threads(), numba.get_num_threads(), os.environ["OMP_NUM_THREADS"]) == (1, 1, "1")
+        assert (torch.get_num_threads(), numba.get_num_threads()) == before
+        assert "OMP_NUM_THREADS" not in os.environ
+    finally:
+        numba.set_num_threads(original[1])
+        torch.set_num_threads(original[0])
 
 
 def test_thread_pools_restore_after_an_error_and_zero_leaves_them(monkeypatch):
