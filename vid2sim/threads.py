@@ -29,8 +29,8 @@ def set_thread_pools(threads: int) -> None:
 
 @contextmanager
 def thread_pools(threads: int) -> Iterator[None]:
-    """Bound torch's and numba's thread pools to `threads` while inside, then restore them;
-    0 leaves them as they are."""
+    """Bound torch's, numba's and OpenMP's thread counts to `threads` while inside, then restore
+    them; 0 leaves them as they are."""
     if threads <= 0:
         yield
         return
