@@ -7,7 +7,7 @@ rendered from it. For the first `--train` streets of the registry's training spl
 streets, `benchmarks/street_registry.py --vary`): render the walk as a 10-s 854x480 video
 (`synthetic.varied(seed, "demo")`), ingest every video through the factory (`fast` pipeline,
 `quick` reconstruction preset) into a second registry, then distill three students with the
-same recipe, seed and budget:
+same recipe (the default distillation recipe; `--teacher-replan`), seed and budget:
   splat    on the reconstructed scenes, rendered from their Gaussian splats (Vid2Sim);
   mesh-rgb on the same reconstructions, rendered from their coloured visual mesh (the paper's
            mesh baseline, `--variant mesh-rgb`);
@@ -128,7 +128,7 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          n_actors=0, seed=args.seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
-                         distill=DistillConfig())
+                         distill=replace(DistillConfig(), teacher_replan=args.teacher_replan))
     return run_dir, train_or_reuse(config, scenes=scene_ids)
 
 
@@ -199,6 +199,8 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
     ap.add_argument("--envs", type=int, default=8)
+    ap.add_argument("--teacher-replan", type=float, default=DistillConfig.teacher_replan,
+                    help="m off its path at which the teacher re-plans (0: at every state)")
     ap.add_argument("--trials", type=int, default=10, help="episodes per held-out GT street")
     ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
     ap.add_argument("--mesh-world-trials", type=int, default=0,
