@@ -239,8 +239,12 @@ def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict,
 def run_study_bench(args, run: Run) -> None:
     reg = registry(args)
     init_ray(None, args.num_cpus)
+    seeds = sorted(args.seeds)
+    if seeds != list(range(seeds[0], seeds[0] + len(seeds))):
+        raise SystemExit(f"study: --seeds {' '.join(map(str, args.seeds))} must be consecutive (a study trains "
+                         "seeds first .. first + n - 1 per count)")
     config = StudyConfig(registry=reg, out_dir=str(args.root / f"study_{args.steps}{args.tag}"),
-                         counts=[int(c) for c in args.counts.split(",")], seeds=len(args.seeds),
+                         counts=[int(c) for c in args.counts.split(",")], seeds=len(seeds), first_seed=seeds[0],
                          total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
                          env_kwargs={"training": True, "fidelity": args.fidelity}, stuck_steps=10,
                          distill=distill_config(args), eval_max_steps=args.eval_max_steps or None)

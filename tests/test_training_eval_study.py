@@ -18,7 +18,7 @@ from vid2sim.training.evaluate import (EvalConfig, EvalReport, Interval, bootstr
                                        summarize)
 from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
-from vid2sim.training.study import StudyConfig, StudyError, StudyRow, check_counts, plot, run_study
+from vid2sim.training.study import StudyConfig, StudyError, StudyRow, check_counts, plot, run_study, study_runs
 
 
 def rec(success: bool, path: float, hits: int = 0) -> EpisodeRecord:
@@ -140,6 +140,12 @@ def test_distill_study_end_to_end_on_ray(street_registry, tmp_path):
     assert all((Path(r.run_dir) / "student.pt").is_file() and len(r.success) == 1 for r in rows)
     study = json.loads((tmp_path / "study.json").read_text())
     assert study["config"]["method"] == "distill" and "sr_ci_low" in study["aggregate"]["1"]
+
+
+def test_a_study_trains_its_seeds_from_first_seed_for_every_count():
+    config = StudyConfig(registry="r", out_dir="o", counts=[1, 5], seeds=2, first_seed=3)
+    assert study_runs(config, [1, 5]) == [(1, 3), (1, 4), (5, 3), (5, 4)]
+    assert study_runs(replace(config, first_seed=0, seeds=1), [1, 5]) == [(1, 0), (5, 0)]
 
 
 def test_a_study_run_again_reuses_finished_runs_and_redoes_changed_ones(street_registry, tmp_path):

@@ -176,6 +176,8 @@ def study_command(
     out_dir: str = typer.Option(..., "--out", help="Study folder (runs, study.json, study.png)."),
     counts: str = typer.Option("1,5,15,25,30", "--counts", help="Training-scene counts (each <= the train pool)."),
     seeds: int = typer.Option(3, "--seeds", min=1, help="Trainings per count."),
+    first_seed: int = typer.Option(0, "--first-seed", min=0,
+                                   help="Seeds first_seed .. first_seed + seeds - 1 (finished runs are reused)."),
     method: str = typer.Option("sac", "--method", help="sac | distill (pixel student from the A* teacher)."),
     steps: Optional[int] = typer.Option(None, "--steps", min=1, help="Env steps per training (default: sac 20k, "
                                                               "distill 80k)."),
@@ -203,7 +205,8 @@ def study_command(
     steps = steps or {"sac": 20_000, "distill": DEFAULT_STEPS["distill"]}[method]
     env_ids = _study_env("pixel" if method == "distill" else env)
     config = StudyConfig(registry=registry, out_dir=out_dir, counts=_counts(counts),
-                         seeds=seeds, split_seed=split_seed, total_steps=steps, n_envs=n_envs, trials=trials,
+                         seeds=seeds, first_seed=first_seed, split_seed=split_seed, total_steps=steps,
+                         n_envs=n_envs, trials=trials,
                          obstacles=obstacles, sac=_sac(learning_starts, batch_size, buffer_size),
                          eval_max_steps=eval_max_steps, method=method,
                          env_kwargs={"training": True} if method == "distill" else {},

@@ -46,7 +46,8 @@ class StudyConfig:
     registry: str
     out_dir: str
     counts: list[int]
-    seeds: int = 2
+    seeds: int = 2  # trainings per count: seeds first_seed .. first_seed + seeds - 1
+    first_seed: int = 0
     split_seed: int = 0
     total_steps: int = 20_000  # env steps per training
     n_envs: int = 2
@@ -134,6 +135,13 @@ def finished_row(run_dir: Path, settings: dict) -> Optional[StudyRow]:
 _run_remote = ray.remote(run_one)
 
 
+def study_runs(config: StudyConfig, counts: list[int]) -> list[tuple[int, int]]:
+    """The (count, seed) trainings of a study: every count with seeds first_seed .. first_seed + seeds - 1
+    (a later study over the same folder with other seeds adds runs beside the finished ones)."""
+    seeds = range(config.first_seed, config.first_seed + config.seeds)
+    return [(n, s) for n in counts for s in seeds]
+
+
 def run_study(config: StudyConfig) -> list[StudyRow]:
     """All (count, seed) runs as Ray tasks (needs `ray.init`); writes study.json and study.png."""
     out = Path(config.out_dir)
@@ -142,7 +150,7 @@ def run_study(config: StudyConfig) -> list[StudyRow]:
     counts = check_counts(config.counts, len(pool.train))
     split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
     remote = _run_remote.options(num_cpus=config.num_cpus_per_run)
-    futures = [remote.remote(config, n, s, split.train_subsets[n]) for n in counts for s in range(config.seeds)]
+    futures = [remote.remote(config, n, s, split.train_subsets[n]) for n, s in study_runs(config, counts)]
     rows = ray.get(futures)
     summary = {"config": asdict(config), "counts": counts, "test_scenes": split.test,
                "rows": [asdict(r) for r in rows], "aggregate": aggregate(rows)}
