@@ -1,4 +1,5 @@
-"""`vid2sim eval ...`: evaluation commands (pose accuracy against ground truth)."""
+"""`vid2sim eval ...`: evaluation commands (pose accuracy against ground truth, policies on held-out
+episodes, two policies compared on the same episodes)."""
 
 from __future__ import annotations
 
@@ -111,3 +112,38 @@ def policy(
     Console().print(table)
     for v in report.videos:
         typer.echo(f"video: {v}")
+
+
+def read_report(path: Path, flag: str):
+    """The EvalReport at `path`; InputError naming `flag` when it is missing or not a report."""
+    from vid2sim.cli.errors import InputError
+    from vid2sim.training.evaluate import EvalReport
+
+    if not path.is_file():
+        raise InputError(f"{flag} {path}", "no such file")
+    try:
+        return EvalReport.from_json(path.read_text())
+    except (ValueError, TypeError, KeyError) as exc:
+        raise InputError(f"{flag} {path}", f"not an evaluation report ({type(exc).__name__}: {exc})") from exc
+
+
+@app.command("compare")
+def compare(
+    report_a: Path = typer.Argument(..., help="Evaluation report A (`eval policy --out`)."),
+    report_b: Path = typer.Argument(..., help="Evaluation report B, made on the same episodes."),
+    metric: str = typer.Option("sr", "--metric", help="sr | spl | cost | sns | sns_proximity"),
+    as_json: bool = typer.Option(False, "--json", help="Print the comparison as JSON."),
+) -> None:
+    """Two policies on the same episodes: B - A of a metric with its 95 % paired-bootstrap interval."""
+    from dataclasses import asdict
+
+    from vid2sim.training.compare import paired_difference
+
+    c = paired_difference(read_report(report_a, "REPORT_A"), read_report(report_b, "REPORT_B"), metric)
+    if as_json:
+        typer.echo(json.dumps(asdict(c), indent=2))
+        return
+    d = c.difference
+    typer.echo(f"{c.metric} over {c.episodes} shared episodes: A {c.mean_a:.3f}, B {c.mean_b:.3f}; "
+               f"B - A {d.mean:+.3f} (95 % {d.low:+.3f} .. {d.high:+.3f}), P(B - A <= 0) {c.p_not_better:.4f}; "
+               f"A ahead in {c.only_a}, B ahead in {c.only_b}")
