@@ -17,7 +17,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from vid2sim.envs.metrics import EpisodeRecord
-from vid2sim.training.evaluate import EvalReport, Interval, episode_values
+from vid2sim.training.evaluate import EvalReport, Interval, bootstrap_means, episode_values
 
 SAME_EPISODES = ("registry", "seed", "obstacles", "pedestrians", "max_steps")  # EvalConfig fields
 RECORD_FIELDS = {f.name for f in fields(EpisodeRecord)}
@@ -51,13 +51,18 @@ def keyed_records(report: EvalReport) -> dict[tuple[str, int], EpisodeRecord]:
     return out
 
 
+def _plain(value):
+    """A config value as JSON reads it back (tuples as lists), so saved and fresh reports compare."""
+    return list(value) if isinstance(value, tuple) else value
+
+
 def check_same_episodes(a: EvalReport, b: EvalReport) -> None:
     """`UnpairedReports` when a setting that decides the episodes differs between the reports."""
     for name in SAME_EPISODES:
         va, vb = a.config.get(name), b.config.get(name)
         if name == "pedestrians" and a.config.get("obstacles") != "dynamic":
             continue  # walkers only exist in SocialNav
-        if (list(va) if isinstance(va, (list, tuple)) else va) != (list(vb) if isinstance(vb, (list, tuple)) else vb):
+        if _plain(va) != _plain(vb):
             raise UnpairedReports(f"{name}: the reports drove different episodes ({name} {va!r} against {vb!r})")
 
 
@@ -74,8 +79,7 @@ def paired_difference(a: EvalReport, b: EvalReport, metric: str = "sr", n: int =
         raise UnpairedReports(f"metric: {metric!r} is not one of {', '.join(va)}")
     xa, xb = va[metric], episode_values([rb[k] for k in keys])[metric]  # [E], [E]
     d = xb - xa  # [E]
-    rng = np.random.default_rng(seed)
-    means = d[rng.integers(0, len(d), (n, len(d)))].mean(axis=1)  # [n]
+    means = bootstrap_means(d, n, seed)  # [n]
     lo, hi = np.quantile(means, [0.025, 0.975])
     return PairedDifference(metric, len(keys), float(xa.mean()), float(xb.mean()),
                             Interval(float(d.mean()), float(lo), float(hi)), float((means <= 0).mean()),

@@ -213,10 +213,15 @@ def episode_values(records: list[EpisodeRecord]) -> dict[str, np.ndarray]:
             "sns": np.array([sns(r) for r in records]), "sns_proximity": np.array([sns_proximity(r) for r in records])}
 
 
+def bootstrap_means(values: np.ndarray, n: int = 1000, seed: int = 0) -> np.ndarray:
+    """Means of n resamples (with replacement) of the episodes' values [E] -> [n]."""
+    rng = np.random.default_rng(seed)
+    return values[rng.integers(0, len(values), (n, len(values)))].mean(axis=1)
+
+
 def bootstrap_ci(values: np.ndarray, n: int = 1000, level: float = 0.95, seed: int = 0) -> Interval:
     """Mean with a percentile-bootstrap interval over episodes."""
-    rng = np.random.default_rng(seed)
-    means = values[rng.integers(0, len(values), (n, len(values)))].mean(axis=1)
+    means = bootstrap_means(values, n, seed)
     lo, hi = np.quantile(means, [(1 - level) / 2, 1 - (1 - level) / 2])
     return Interval(float(values.mean()), float(lo), float(hi))
 
