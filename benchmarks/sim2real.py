@@ -17,7 +17,11 @@ fidelity) of the split's held-out streets, and of their own training streets, wi
 `vid2sim eval policy`'s protocol (0-5 static obstacles, seeds 1000 + k, a `--eval-max-steps`
 limit). The test world's rendering matters, so two more can be asked for: the held-out streets'
 flat-coloured GT mesh (`--mesh-world-trials`) and the same streets built with more GT splats
-(`--dense-world-trials`, `--dense-world-splats`), closer to the video. Every stage is resumable:
+(`--dense-world-trials`, `--dense-world-splats`), closer to the video. The held-out streets can
+also be reconstructed through the factory the same way (`--recon-world-trials`): every student is
+then evaluated in those reconstructions too, rendered from their splats, with the factory's own
+walkable maps and collision meshes (the pixel policy's bar on scenes the factory made: trained on
+reconstructions, tested on reconstructions of streets it never saw). Every stage is resumable:
 finished renders, reconstructions, trainings and evaluations of the same protocol are reused.
 """
 
@@ -71,15 +75,15 @@ def render_clip(seed: int, clips: Path) -> Path:
     return video
 
 
-def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> tuple[str, dict]:
-    """Render and ingest every street the reconstruction registry lacks -> its root, and each
-    street's reconstruction record."""
+def reconstruct(run: Run, root: Path, streets: list[str], workers: int, side: str = "training") -> tuple[str, dict]:
+    """Render and ingest every street of the split's `side` ("training" / "held-out") that the
+    reconstruction registry lacks -> its root, and each street's reconstruction record."""
     from vid2sim.factory.recon.config import preset as recon_preset
     from vid2sim.factory.runtime.pipeline import ingest, preset
     from vid2sim.factory.synthetic import StreetConfig  # the walk's camera height (every varied street's)
 
     recon_root = root / "sim2real" / "registry"
-    timings = root / "sim2real" / "reconstruction.json"  # the seconds of the call that made them
+    timings = root / "sim2real" / RECON_TIMINGS[side]  # the seconds of the call that made them
     have = recon_scenes(str(recon_root))
     todo = [s for s in streets if s not in have]
     if todo:
@@ -101,7 +105,8 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> tuple
         raise SystemExit(f"reconstruction failed for {missing}: see the ingest report above")
     if timings.is_file():
         t = json.loads(timings.read_text())
-        run.record_all(f"render and ingest {len(t['streets'])} videos, 10 s 854x480 (fast pipeline, quick recon)",
+        run.record_all(f"render and ingest {len(t['streets'])} videos, 10 s 854x480 (fast pipeline, quick recon)"
+                       + ("" if side == "training" else f", {side} streets"),
                        {"render_wall_s": t["render_wall_s"], "ingest_wall_s": t["ingest_wall_s"]}, "s")
     for street in streets:
         rec = have[street]
@@ -109,6 +114,9 @@ def reconstruct(run: Run, root: Path, streets: list[str], workers: int) -> tuple
                                                        "splats": rec.num_splats,
                                                        "walkable_m2": rec.walkable_area_m2}, "")
     return str(recon_root), have
+
+
+RECON_TIMINGS = {"training": "reconstruction.json", "held-out": "reconstruction_heldout.json"}
 
 
 def recon_scenes(recon_registry: str) -> dict:
@@ -133,6 +141,7 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
 
 
 WORLD_NAMES = {"splat": "", "mesh": ", GT mesh rendering", "dense": ", dense GT splats"}
+RECON_WORLD = "factory reconstructions of the held-out streets"
 
 
 def evaluate_in_gt(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
@@ -161,6 +170,9 @@ def run_sim2real(args, run: Run) -> None:
         recon_registry, recons = reconstruct(run, args.root, train, args.workers)
         recon_ids = [recons[s].scene_id for s in train]
         sources |= {"splat": (recon_registry, recon_ids), "mesh-rgb": (recon_registry, recon_ids)}
+    if args.recon_world_trials:  # the held-out streets through the factory as well
+        recon_registry, recons = reconstruct(run, args.root, heldout, args.workers, side="held-out")
+        args.recon_world = (recon_registry, [recons[s].scene_id for s in heldout])
     if args.recon_only:
         return
     dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
@@ -187,6 +199,21 @@ def evaluate_student(args, run: Run, gt_registry: str, dense: Path, name: str, r
     if args.dense_world_trials:
         evaluate_in_gt(args, run, str(dense / "registry"), name, run_dir, budget, "held-out", heldout,
                        args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
+    if args.recon_world_trials:
+        evaluate_in_reconstructions(args, run, name, run_dir, budget)
+
+
+def evaluate_in_reconstructions(args, run: Run, name: str, run_dir: Path, budget: dict) -> None:
+    """The evaluation protocol in the factory's reconstructions of the held-out streets, rendered
+    from their splats, on the factory's walkable maps and collision meshes."""
+    registry, scenes = args.recon_world
+    config = EvalConfig(registry=registry, policy=str(run_dir), scene_ids=scenes, trials=args.recon_world_trials,
+                        obstacles="static", max_steps=args.eval_max_steps or None,
+                        checkout_root=str(args.root / "checkouts"))
+    rep = evaluate_saved(config, run_dir / "eval_recon_held-out.json")
+    record_eval(run, f"{name} student, seed {budget['seed']}, in {RECON_WORLD}", rep,
+                {k: v for k, v in budget.items() if k != "scenes"}
+                | {"trials": args.recon_world_trials, "scenes": len(scenes)})
 
 
 def main() -> None:
@@ -208,6 +235,8 @@ def main() -> None:
     ap.add_argument("--dense-world-trials", type=int, default=0,
                     help="also evaluate in the held-out GT worlds built with --dense-world-splats splats")
     ap.add_argument("--dense-world-splats", type=int, default=200_000)
+    ap.add_argument("--recon-world-trials", type=int, default=0,
+                    help="also reconstruct the held-out streets through the factory and evaluate in them")
     ap.add_argument("--eval-max-steps", type=int, default=600, help="evaluation episode limit (0: the env's 3000)")
     ap.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="renders / Ray CPUs for the ingest")
     ap.add_argument("--recon-only", action="store_true", help="stop after the reconstructions")
