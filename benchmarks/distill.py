@@ -45,7 +45,7 @@ from vid2sim.training.ensemble import build_ensemble, load_student  # noqa: E402
 from vid2sim.training.evaluate import EvalConfig, EvalReport, bootstrap_ci, evaluate  # noqa: E402
 from vid2sim.training.rollouts import init_ray  # noqa: E402
 from vid2sim.training.student import StudentConfig  # noqa: E402
-from vid2sim.training.study import StudyConfig, aggregate, run_study  # noqa: E402
+from vid2sim.training.study import StudyConfig, aggregate, report_study, run_study  # noqa: E402
 
 
 def registry(args) -> str:
@@ -238,7 +238,6 @@ def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict,
 
 def run_study_bench(args, run: Run) -> None:
     reg = registry(args)
-    init_ray(None, args.num_cpus)
     seeds = sorted(args.seeds)
     if seeds != list(range(seeds[0], seeds[0] + len(seeds))):
         raise SystemExit(f"study: --seeds {' '.join(map(str, args.seeds))} must be consecutive (a study trains "
@@ -248,7 +247,11 @@ def run_study_bench(args, run: Run) -> None:
                          total_steps=args.steps, n_envs=args.envs, trials=args.trials, method="distill",
                          env_kwargs={"training": True, "fidelity": args.fidelity}, stuck_steps=10,
                          distill=distill_config(args), eval_max_steps=args.eval_max_steps or None)
-    rows = run_study(config)
+    if args.report_only:  # the folder's finished runs, nothing trained
+        rows = report_study(config)
+    else:
+        init_ray(None, args.num_cpus)
+        rows = run_study(config)
     for n, agg in aggregate(rows).items():
         run.record_all(f"{n} training scenes", {k: agg[k] for k in agg if k != "seeds"}, "",
                        {"seeds": agg["seeds"], "env_steps": args.steps, "trials": args.trials})
@@ -319,6 +322,8 @@ def main() -> None:
                     help="heldout: evaluate only the ensembles, not each student")
     ap.add_argument("--counts", default="1,5,15,25,30", help="study: training-scene counts")
     ap.add_argument("--num-cpus", type=int, default=2, help="study: local Ray runtime CPUs (one training each)")
+    ap.add_argument("--report-only", action="store_true",
+                    help="study: train nothing, the table of the study folder's finished runs with these settings")
     ap.add_argument("--quick", action="store_true",
                     help="6 streets, one seed (two with --ensemble), 2 rounds of 200 steps, 2 trials")
     ap.add_argument("--extra-streets", type=int, default=0,

@@ -167,3 +167,31 @@ def test_a_study_run_again_reuses_finished_runs_and_redoes_changed_ones(street_r
     assert len(changed.success) == 2 * len(first.success) and student.stat().st_mtime_ns > trained_at
     recorded = json.loads((tmp_path / "n1_s0" / ROW_NAME).read_text())
     assert recorded["settings"]["eval"]["trials"] == 2
+
+
+def test_a_study_report_gathers_the_folders_finished_runs_with_its_settings(street_registry, tmp_path):
+    """study.json / study.png cover every finished run of the folder made with the study's settings,
+    whichever invocation trained it; runs of another protocol or on other scenes than the split's
+    nested subset stay out; an empty folder is a named error."""
+    from vid2sim.training.config import DistillConfig
+    from vid2sim.training.student import StudentConfig
+    from vid2sim.registry import Registry
+    from vid2sim.training.study import report_study, run_one
+
+    distill = DistillConfig(steps_per_round=20, updates_per_round=2, batch_size=8, train_max_steps=20,
+                            student=StudentConfig(channels=(4, 4, 8, 8), frame_dim=8, vector_dim=8, hidden=16))
+    config = StudyConfig(registry=str(street_registry), out_dir=str(tmp_path), counts=[1], seeds=1, total_steps=20,
+                         n_envs=1, trials=1, method="distill", env_kwargs={"training": True, "fidelity": "exact"},
+                         distill=distill, eval_max_steps=5)
+    with pytest.raises(StudyError, match="no_finished_runs"):
+        report_study(config)
+    first = Registry(str(street_registry)).split(seed=0, train_sizes=[1]).train_subsets[1]  # the study's train-1
+    seed0 = run_one(config, 1, 0, first)
+    seed1 = run_one(replace(config, trials=2), 1, 1, first)  # another protocol
+    run_one(config, 1, 2, ["synthetic-street-s1"] if first != ["synthetic-street-s1"] else ["synthetic-street-s2"])
+    (tmp_path / "n99_s0").mkdir()  # a count beyond the pool, never finished: ignored
+    rows = report_study(replace(config, counts=[4], seeds=2, first_seed=5))  # counts / seeds asked do not matter
+    assert rows == [seed0]
+    study = json.loads((tmp_path / "study.json").read_text())
+    assert study["counts"] == [1] and study["aggregate"]["1"]["seeds"] == 1 and (tmp_path / "study.png").is_file()
+    assert report_study(replace(config, trials=2)) == [seed1]

@@ -22,7 +22,7 @@ from vid2sim.training.privileged import PRIVILEGED_ID
 from vid2sim.training.rollouts import init_ray
 from vid2sim.training.sac import train
 from vid2sim.training.student import StudentConfig
-from vid2sim.training.study import StudyConfig, aggregate, run_study
+from vid2sim.training.study import StudyConfig, StudyError, aggregate, report_study, run_study
 
 DEFAULT_STEPS = {"sac": 1_500_000, "distill": 80_000}  # the paper's SAC budget; a 2-core CPU distillation
 
@@ -196,9 +196,12 @@ def study_command(
     num_cpus: Optional[int] = typer.Option(None, "--num-cpus", min=1),
     env: str = typer.Option("pixel", "--env", help="pixel (PointNav RGB) | privileged (goal vector + ranges)"),
     eval_max_steps: Optional[int] = typer.Option(None, "--eval-max-steps", min=1, help="Evaluation episode limit."),
+    report_only: bool = typer.Option(False, "--report-only",
+                                     help="Train nothing: the table and plot of the folder's finished runs."),
     as_json: bool = typer.Option(False, "--json"),
 ) -> None:
-    """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot."""
+    """Train per (count, seed) as Ray tasks, evaluate on held-out scenes, table + PNG plot (over every
+    finished run of the folder with the same settings)."""
     registry_root(registry)
     creatable_folder(out_dir, "--out")
     method = _method(method)
@@ -214,8 +217,14 @@ def study_command(
                          distill=replace(DistillConfig(), steps_per_round=steps_per_round,
                                          updates_per_round=updates_per_round), **env_ids)
     check_ranges(config)
-    _ray(ray_address, num_cpus)
-    rows = run_study(config)
+    if report_only:
+        try:
+            rows = report_study(config)
+        except StudyError as e:
+            raise InputError(f"--out {out_dir}", str(e)) from e
+    else:
+        _ray(ray_address, num_cpus)
+        rows = run_study(config)
     if as_json:
         typer.echo(json.dumps([asdict(r) for r in rows], indent=2))
         return

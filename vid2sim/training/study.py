@@ -11,12 +11,16 @@ against N: mean over seeds, the seeds' spread, and the pooled 95 % bootstrap int
 
 A finished (N, s) run leaves OUT/nN_sS/study_row.json with its training and evaluation settings;
 a study run again over the same folder reuses every run whose settings are unchanged and trains
-only the others, so an interrupted study goes on where it stopped.
+only the others, so an interrupted study goes on where it stopped. study.json and study.png cover
+every finished run of the folder made with the study's settings, whichever invocation trained it
+(studies that add seeds or counts beside finished runs build one table); `report_study` writes
+them from the finished runs alone, training nothing.
 """
 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -91,9 +95,9 @@ def check_counts(counts: list[int], available: int) -> list[int]:
 ROW_NAME = "study_row.json"  # a finished run's row and the settings that made it
 
 
-def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) -> StudyRow:
-    """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes (or reuse the
-    run's recorded row when its settings are unchanged)."""
+def run_settings(config: StudyConfig, count: int, seed: int,
+                 scene_ids: list[str]) -> tuple[TrainConfig, EvalConfig, dict]:
+    """The training and evaluation configs of run (count, seed) and the settings its row records."""
     run_dir = Path(config.out_dir) / f"n{count}_s{seed}"
     checkouts = str(Path(config.out_dir) / "checkouts")
     tc = TrainConfig(run_dir=str(run_dir), total_steps=config.total_steps, registry=config.registry,
@@ -107,7 +111,14 @@ def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) ->
                     trials=config.trials, obstacles=config.obstacles,
                     env_id=None if config.method == "distill" else config.env_id,
                     max_steps=config.eval_max_steps, checkout_root=checkouts)
-    settings = json.loads(json.dumps({"train": asdict(tc), "eval": asdict(ec)}))  # as stored (tuples -> lists)
+    return tc, ec, json.loads(json.dumps({"train": asdict(tc), "eval": asdict(ec)}))  # as stored (tuples -> lists)
+
+
+def run_one(config: StudyConfig, count: int, seed: int, scene_ids: list[str]) -> StudyRow:
+    """Train on `scene_ids` with `seed`, then evaluate on the held-out test scenes (or reuse the
+    run's recorded row when its settings are unchanged)."""
+    tc, ec, settings = run_settings(config, count, seed, scene_ids)
+    run_dir = Path(tc.run_dir)
     done = finished_row(run_dir, settings)
     if done is not None:
         return done
@@ -143,16 +154,63 @@ def study_runs(config: StudyConfig, counts: list[int]) -> list[tuple[int, int]]:
 
 
 def run_study(config: StudyConfig) -> list[StudyRow]:
-    """All (count, seed) runs as Ray tasks (needs `ray.init`); writes study.json and study.png."""
-    out = Path(config.out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    """All (count, seed) runs as Ray tasks (needs `ray.init`); writes study.json and study.png over
+    every finished run of the folder with the study's settings, and returns those rows."""
+    Path(config.out_dir).mkdir(parents=True, exist_ok=True)
     pool = Registry(config.registry).split(seed=config.split_seed)
     counts = check_counts(config.counts, len(pool.train))
     split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
     remote = _run_remote.options(num_cpus=config.num_cpus_per_run)
     futures = [remote.remote(config, n, s, split.train_subsets[n]) for n, s in study_runs(config, counts)]
-    rows = ray.get(futures)
-    summary = {"config": asdict(config), "counts": counts, "test_scenes": split.test,
+    asked = ray.get(futures)
+    return write_summary(config, merge_rows(asked, finished_rows(config)))
+
+
+def report_study(config: StudyConfig) -> list[StudyRow]:
+    """study.json and study.png from the folder's finished runs with the study's settings, training
+    nothing (`StudyError` when there is none); returns their rows."""
+    rows = finished_rows(config)
+    if not rows:
+        raise StudyError(f"no_finished_runs: {config.out_dir} holds no finished run (nN_sS/{ROW_NAME}) made with "
+                         "these study settings")
+    return write_summary(config, rows)
+
+
+RUN_FOLDER = re.compile(r"n(\d+)_s(\d+)")
+
+
+def finished_rows(config: StudyConfig) -> list[StudyRow]:
+    """Every run of the study folder (nN_sS, any count of the train pool, any seed) that finished with
+    exactly the settings this study would give it, by count then seed."""
+    out = Path(config.out_dir)
+    found = sorted((int(m.group(1)), int(m.group(2))) for d in out.glob("n*_s*")
+                   if d.is_dir() and (m := RUN_FOLDER.fullmatch(d.name)))
+    pool = len(Registry(config.registry).split(seed=config.split_seed).train)
+    counts = sorted({n for n, _ in found if 1 <= n <= pool})
+    if not counts:
+        return []
+    split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
+    rows = []
+    for n, s in found:
+        if n in split.train_subsets:
+            _, _, settings = run_settings(config, n, s, split.train_subsets[n])
+            if (row := finished_row(out / f"n{n}_s{s}", settings)) is not None:
+                rows.append(row)
+    return rows
+
+
+def merge_rows(first: list[StudyRow], more: list[StudyRow]) -> list[StudyRow]:
+    """`first` and the rows of `more` whose (count, seed) it lacks, by count then seed."""
+    rows = {(r.count, r.seed): r for r in more} | {(r.count, r.seed): r for r in first}
+    return [rows[k] for k in sorted(rows)]
+
+
+def write_summary(config: StudyConfig, rows: list[StudyRow]) -> list[StudyRow]:
+    """study.json (settings, rows, per-count aggregate) and study.png for `rows`; returns them."""
+    out = Path(config.out_dir)
+    counts = sorted({r.count for r in rows})
+    test = Registry(config.registry).split(seed=config.split_seed).test
+    summary = {"config": asdict(config), "counts": counts, "test_scenes": test,
                "rows": [asdict(r) for r in rows], "aggregate": aggregate(rows)}
     (out / "study.json").write_text(json.dumps(summary, indent=2))
     plot(rows, out / "study.png", config)
@@ -194,8 +252,10 @@ def plot(rows: list[StudyRow], path: Path, config: Optional[StudyConfig] = None)
         ax.set_ylabel(label)
         ax.set_ylim(-0.05, 1.05)
     if config:
-        fig.suptitle(f"{config.total_steps} env steps per run, {config.seeds} seeds, {config.trials} trials/test scene",
-                     fontsize=9)
+        seeds = sorted({int(a["seeds"]) for a in agg.values()})
+        per_count = f"{seeds[0]}" if len(seeds) == 1 else f"{seeds[0]}-{seeds[-1]}"
+        fig.suptitle(f"{config.total_steps} env steps per run, {per_count} seeds per count, "
+                     f"{config.trials} trials/test scene", fontsize=9)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
