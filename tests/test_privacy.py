@@ -153,3 +153,41 @@ def test_scene_json_records_the_anonymiser() -> None:
     dec = scene["pipeline"]["config"]["decode"]
     assert dec["faces"]["detector"] == "centerface" and dec["faces"]["score_threshold"] == 0.0
     assert dec["plates"]["detector"] == "text_rows" and dec["plates"]["min_char_px"] == 4
+
+
+def chain_roots_reference(c: np.ndarray, conf: PlateConfig) -> np.ndarray:
+    """The plain-Python union-find `plates._chain_roots` compiles (characters sorted by x0)."""
+    h, parent = c[:, 3] - c[:, 1], list(range(len(c)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(len(c)):
+        for j in range(i + 1, len(c)):
+            gap = c[j, 0] - c[i, 2]
+            if gap > conf.max_gap * h[i]:
+                break
+            tol = conf.align * max(h[i], h[j])
+            if (gap > -0.2 * h[i] and abs(c[i, 1] - c[j, 1]) < tol and abs(c[i, 3] - c[j, 3]) < tol
+                    and 1 / conf.height_ratio < h[j] / h[i] < conf.height_ratio):
+                parent[root(j)] = root(i)
+    return np.array([root(i) for i in range(len(c))])
+
+
+def test_plate_character_chains_equal_the_plain_reference() -> None:
+    """The compiled chaining of character boxes gives the reference's roots, on rows of text and clutter."""
+    from vid2sim.factory.ingest.plates import _chain_roots
+
+    rng = np.random.default_rng(0)
+    conf = PlateConfig()
+    rows = [np.c_[x0 + 14 * np.arange(6), np.full(6, y), x0 + 14 * np.arange(6) + 9, np.full(6, y + 16)]
+            for x0, y in rng.uniform(0, 800, (20, 2))]  # [6, 4] each: 6 characters in a line
+    xy, wh = rng.uniform(0, 900, (600, 2)), rng.uniform(3, 40, (600, 2))
+    boxes = np.concatenate([*rows, np.c_[xy, xy + wh]]) + rng.normal(0, 0.5, (720, 4))
+    boxes = boxes[np.argsort(boxes[:, 0])]
+    roots = _chain_roots(boxes, conf.max_gap, conf.align, conf.height_ratio)
+    assert np.array_equal(roots, chain_roots_reference(boxes, conf))
+    assert len(np.unique(roots)) < len(boxes) - 20 * 5 + 1  # the 20 rows at least were chained

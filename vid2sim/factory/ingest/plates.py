@@ -16,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import cv2
+import numba
 import numpy as np
 
 from vid2sim.ranges import checked
@@ -50,27 +51,38 @@ def _characters(binary: np.ndarray, conf: PlateConfig) -> np.ndarray:
 def _chains(chars: np.ndarray, conf: PlateConfig) -> list[np.ndarray]:
     """Groups of characters chained left to right on one line (indices into `chars`)."""
     order = np.argsort(chars[:, 0])
-    c = chars[order]
-    h = c[:, 3] - c[:, 1]
-    parent = np.arange(len(c))
-
-    def root(i: int) -> int:
-        while parent[i] != i:
-            parent[i] = parent[parent[i]]
-            i = parent[i]
-        return i
-
-    for i in range(len(c)):
-        for j in range(i + 1, len(c)):
-            gap = c[j, 0] - c[i, 2]
-            if gap > conf.max_gap * h[i]:
-                break
-            tol = conf.align * max(h[i], h[j])
-            if (gap > -0.2 * h[i] and abs(c[i, 1] - c[j, 1]) < tol and abs(c[i, 3] - c[j, 3]) < tol
-                    and 1 / conf.height_ratio < h[j] / h[i] < conf.height_ratio):
-                parent[root(j)] = root(i)
-    roots = np.array([root(i) for i in range(len(c))], int)
+    roots = _chain_roots(np.ascontiguousarray(chars[order]), conf.max_gap, conf.align, conf.height_ratio)
     return [order[roots == r] for r in np.unique(roots) if (roots == r).sum() >= conf.min_chars]
+
+
+@numba.njit(cache=True)
+def _root(parent: np.ndarray, i: int) -> int:
+    while parent[i] != i:
+        parent[i] = parent[parent[i]]
+        i = parent[i]
+    return i
+
+
+@numba.njit(cache=True)
+def _chain_roots(c: np.ndarray, max_gap: float, align: float, height_ratio: float) -> np.ndarray:
+    """Union-find over characters `c` [N, 4] sorted by x0: neighbours within `max_gap` heights whose
+    tops, bottoms and heights agree are joined; the root of each character [N]."""
+    n = c.shape[0]
+    h = c[:, 3] - c[:, 1]
+    parent = np.arange(n)
+    for i in range(n):
+        for j in range(i + 1, n):
+            gap = c[j, 0] - c[i, 2]
+            if gap > max_gap * h[i]:
+                break
+            tol = align * max(h[i], h[j])
+            if (gap > -0.2 * h[i] and abs(c[i, 1] - c[j, 1]) < tol and abs(c[i, 3] - c[j, 3]) < tol
+                    and 1 / height_ratio < h[j] / h[i] < height_ratio):
+                parent[_root(parent, j)] = _root(parent, i)
+    roots = np.empty(n, np.int64)
+    for i in range(n):
+        roots[i] = _root(parent, i)
+    return roots
 
 
 def detect_plates(bgr: np.ndarray, conf: PlateConfig = PlateConfig()) -> np.ndarray:
