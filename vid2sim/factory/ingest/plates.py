@@ -6,9 +6,8 @@ their text. On an adaptive threshold of the grey image (enlarged `scale` times; 
 and light-on-dark), connected components shaped like characters (height in [min_char_px,
 max_char_px], width / height in [0.12, max_aspect], fill in [0.15, 0.95]) are chained left to
 right when their tops and bottoms line up and the gap is under `max_gap` character heights; a
-chain of >= `min_chars` at least 1.8 character heights long, whose characters are not mostly thin
-bars (median width / height >= `min_row_aspect`: window mullions and railings in a row), is a plate
-(its box padded by about half a character height). Any line of text (a shop sign, a house number) is blurred too; the
+chain of >= `min_chars` at least 1.8 character heights long is a plate (its box padded by about
+half a character height). Any line of text (a shop sign, a house number) is blurred too; the
 false-positive area is measured in benchmarks/privacy.py.
 """
 
@@ -32,7 +31,6 @@ class PlateConfig:
     min_chars: int = 4  # fewest characters in a row that counts as a plate
     max_gap: float = 1.2  # largest gap between neighbouring characters, in character heights
     max_aspect: float = 2.5  # widest component (width / height); > 1 admits glyphs that touch
-    min_row_aspect: float = 0.25  # a row's median character width / height at least this (not a fence of bars)
     align: float = 0.2  # tops and bottoms of neighbours agree within this fraction of their height
     height_ratio: float = 1.33  # neighbours' heights differ by at most this factor
     block_px: int = 15  # adaptive-threshold window
@@ -103,7 +101,6 @@ def detect_plates(bgr: np.ndarray, conf: PlateConfig = PlateConfig()) -> np.ndar
             g = chars[idx]
             x0, y0, x1, y1 = g[:, 0].min(), g[:, 1].min(), g[:, 2].max(), g[:, 3].max()
             ch = np.median(g[:, 3] - g[:, 1])
-            wide = np.median((g[:, 2] - g[:, 0]) / (g[:, 3] - g[:, 1])) >= conf.min_row_aspect
-            if wide and 1.8 <= (x1 - x0) / ch <= 14:  # the character row; the plate is its padded box
+            if 1.8 <= (x1 - x0) / ch <= 14:  # the character row; the plate is its padded box
                 boxes.append([x0 - 0.6 * ch, y0 - 0.45 * ch, x1 + 0.6 * ch, y1 + 0.45 * ch])
     return np.clip(np.asarray(boxes, np.float64).reshape(-1, 4) / conf.scale, 0, [w, h, w, h])
