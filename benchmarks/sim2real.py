@@ -33,7 +33,7 @@ import os
 import re
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Optional
@@ -140,24 +140,39 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
     return run_dir, train_or_reuse(config, scenes=scene_ids)
 
 
-WORLD_NAMES = {"splat": "", "mesh": ", GT mesh rendering", "dense": ", dense GT splats"}
-RECON_WORLD = "factory reconstructions of the held-out streets"
+@dataclass(frozen=True)
+class World:
+    """Where a student is tested: `trials` episodes on each of a registry's `scene_ids`, rendered as
+    `variant`; the report is saved in the run folder as `report` and recorded under `label`."""
+
+    label: str
+    registry: str
+    scene_ids: list[str]
+    trials: int
+    report: str
+    variant: str = "rgb"
+    checkouts: Optional[Path] = None
 
 
-def evaluate_in_gt(args, run: Run, gt_registry: str, name: str, run_dir: Path, budget: dict,
-                   where: str, scenes: list[str], trials: int, world: str = "splat",
-                   checkouts: Optional[Path] = None) -> None:
-    """The evaluation protocol in the ground-truth worlds of `scenes`, rendered from the GT bundle's
-    splats (`world` "splat", or "dense": a registry of the same streets with more splats) or its
-    flat-coloured GT mesh ("mesh"); a saved report of the same protocol is reused."""
-    config = EvalConfig(registry=gt_registry, policy=str(run_dir), scene_ids=scenes, trials=trials,
-                        obstacles="static", max_steps=args.eval_max_steps or None,
-                        variant="mesh-rgb" if world == "mesh" else "rgb",
-                        checkout_root=str(checkouts or args.root / "checkouts"))
-    rep = evaluate_saved(config, run_dir / f"eval_gt_{world}_{where}.json")
-    case = f"{name} student, seed {budget['seed']}, in GT {where} streets"
-    record_eval(run, case + WORLD_NAMES[world], rep,
-                {k: v for k, v in budget.items() if k != "scenes"} | {"trials": trials, "scenes": len(scenes)})
+def worlds_to_test(args, gt_registry: str, dense: Path, train: list[str], heldout: list[str],
+                recon_world: Optional[tuple[str, list[str]]]) -> list[World]:
+    """Every test the arguments ask for: held-out GT streets, the student's own streets in GT, the
+    held-out streets as a flat-coloured mesh and with dense GT splats (the root `dense`), and the
+    factory's reconstructions of the held-out streets (registry, scene ids)."""
+    worlds = [World("in GT held-out streets", gt_registry, heldout, args.trials, "eval_gt_splat_held-out.json")]
+    if args.train_trials:
+        worlds.append(World("in GT training streets", gt_registry, train, args.train_trials,
+                            "eval_gt_splat_training.json"))
+    if args.mesh_world_trials:
+        worlds.append(World("in GT held-out streets, GT mesh rendering", gt_registry, heldout,
+                            args.mesh_world_trials, "eval_gt_mesh_held-out.json", variant="mesh-rgb"))
+    if args.dense_world_trials:
+        worlds.append(World("in GT held-out streets, dense GT splats", str(dense / "registry"), heldout,
+                            args.dense_world_trials, "eval_gt_dense_held-out.json", checkouts=dense / "checkouts"))
+    if recon_world is not None:  # on the factory's own walkable maps and collision meshes
+        worlds.append(World("in factory reconstructions of the held-out streets", *recon_world,
+                            args.recon_world_trials, "eval_recon_held-out.json"))
+    return worlds
 
 
 def run_sim2real(args, run: Run) -> None:
@@ -170,50 +185,35 @@ def run_sim2real(args, run: Run) -> None:
         recon_registry, recons = reconstruct(run, args.root, train, args.workers)
         recon_ids = [recons[s].scene_id for s in train]
         sources |= {"splat": (recon_registry, recon_ids), "mesh-rgb": (recon_registry, recon_ids)}
+    recon_world = None
     if args.recon_world_trials:  # the held-out streets through the factory as well
         recon_registry, recons = reconstruct(run, args.root, heldout, args.workers, side="held-out")
-        args.recon_world = (recon_registry, [recons[s].scene_id for s in heldout])
+        recon_world = (recon_registry, [recons[s].scene_id for s in heldout])
     if args.recon_only:
         return
     dense = args.root / "sim2real" / f"gt_{args.dense_world_splats}"
     if args.dense_world_trials:  # the held-out streets again, with more GT splats
         build(dense, [street_seed(s) for s in heldout], args.dense_world_splats, vary=True)
+    worlds = worlds_to_test(args, gt_registry, dense, train, heldout, recon_world)
     for name in args.variants:
         run_dir, budget = train_student(args, name, *sources[name])
         run.record_all(f"{name} student, seed {args.seed}", {"train_wall_s": budget["train_wall_s"],
                                                              "train_cpu_s": budget["train_cpu_s"]}, "s",
                        {"seed": args.seed})
-        evaluate_student(args, run, gt_registry, dense, name, run_dir, budget, train, heldout)
+        for world in worlds:
+            evaluate_in(args, run, name, run_dir, budget, world)
 
 
-def evaluate_student(args, run: Run, gt_registry: str, dense: Path, name: str, run_dir: Path, budget: dict,
-                     train: list[str], heldout: list[str]) -> None:
-    """Every test the arguments ask for: held-out GT streets, the student's own streets in GT, the
-    held-out streets as a flat-coloured mesh and with dense GT splats (the root `dense`)."""
-    evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout, args.trials)
-    if args.train_trials:
-        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "training", train, args.train_trials)
-    if args.mesh_world_trials:
-        evaluate_in_gt(args, run, gt_registry, name, run_dir, budget, "held-out", heldout,
-                       args.mesh_world_trials, world="mesh")
-    if args.dense_world_trials:
-        evaluate_in_gt(args, run, str(dense / "registry"), name, run_dir, budget, "held-out", heldout,
-                       args.dense_world_trials, world="dense", checkouts=dense / "checkouts")
-    if args.recon_world_trials:
-        evaluate_in_reconstructions(args, run, name, run_dir, budget)
-
-
-def evaluate_in_reconstructions(args, run: Run, name: str, run_dir: Path, budget: dict) -> None:
-    """The evaluation protocol in the factory's reconstructions of the held-out streets, rendered
-    from their splats, on the factory's walkable maps and collision meshes."""
-    registry, scenes = args.recon_world
-    config = EvalConfig(registry=registry, policy=str(run_dir), scene_ids=scenes, trials=args.recon_world_trials,
-                        obstacles="static", max_steps=args.eval_max_steps or None,
-                        checkout_root=str(args.root / "checkouts"))
-    rep = evaluate_saved(config, run_dir / "eval_recon_held-out.json")
-    record_eval(run, f"{name} student, seed {budget['seed']}, in {RECON_WORLD}", rep,
+def evaluate_in(args, run: Run, name: str, run_dir: Path, budget: dict, world: World) -> None:
+    """The evaluation protocol (0-5 static obstacles, exact render) in `world`; a saved report of the
+    same protocol is reused."""
+    config = EvalConfig(registry=world.registry, policy=str(run_dir), scene_ids=world.scene_ids,
+                        trials=world.trials, obstacles="static", max_steps=args.eval_max_steps or None,
+                        variant=world.variant, checkout_root=str(world.checkouts or args.root / "checkouts"))
+    rep = evaluate_saved(config, run_dir / world.report)
+    record_eval(run, f"{name} student, seed {budget['seed']}, {world.label}", rep,
                 {k: v for k, v in budget.items() if k != "scenes"}
-                | {"trials": args.recon_world_trials, "scenes": len(scenes)})
+                | {"trials": world.trials, "scenes": len(world.scene_ids)})
 
 
 def main() -> None:

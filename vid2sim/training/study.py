@@ -157,19 +157,23 @@ def run_study(config: StudyConfig) -> list[StudyRow]:
     """All (count, seed) runs as Ray tasks (needs `ray.init`); writes study.json and study.png over
     every finished run of the folder with the study's settings, and returns those rows."""
     Path(config.out_dir).mkdir(parents=True, exist_ok=True)
-    pool = Registry(config.registry).split(seed=config.split_seed)
-    counts = check_counts(config.counts, len(pool.train))
-    split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
+    pool = training_pool(config)
+    counts = check_counts(config.counts, len(pool))
     remote = _run_remote.options(num_cpus=config.num_cpus_per_run)
-    futures = [remote.remote(config, n, s, split.train_subsets[n]) for n, s in study_runs(config, counts)]
+    futures = [remote.remote(config, n, s, pool[:n]) for n, s in study_runs(config, counts)]
     asked = ray.get(futures)
-    return write_summary(config, merge_rows(asked, finished_rows(config)))
+    return write_summary(config, merge_rows(asked, finished_rows(config, pool)))
+
+
+def training_pool(config: StudyConfig) -> list[str]:
+    """The split's training scenes in subset order: the n-scene training set is the first n."""
+    return Registry(config.registry).split(seed=config.split_seed).train
 
 
 def report_study(config: StudyConfig) -> list[StudyRow]:
     """study.json and study.png from the folder's finished runs with the study's settings, training
     nothing (`StudyError` when there is none); returns their rows."""
-    rows = finished_rows(config)
+    rows = finished_rows(config, training_pool(config))
     if not rows:
         raise StudyError(f"no_finished_runs: {config.out_dir} holds no finished run (nN_sS/{ROW_NAME}) made with "
                          "these study settings")
@@ -179,21 +183,16 @@ def report_study(config: StudyConfig) -> list[StudyRow]:
 RUN_FOLDER = re.compile(r"n(\d+)_s(\d+)")
 
 
-def finished_rows(config: StudyConfig) -> list[StudyRow]:
-    """Every run of the study folder (nN_sS, any count of the train pool, any seed) that finished with
-    exactly the settings this study would give it, by count then seed."""
+def finished_rows(config: StudyConfig, pool: list[str]) -> list[StudyRow]:
+    """Every run of the study folder (nN_sS, any count up to the training pool's size, any seed) that
+    finished with exactly the settings this study would give it, by count then seed."""
     out = Path(config.out_dir)
     found = sorted((int(m.group(1)), int(m.group(2))) for d in out.glob("n*_s*")
                    if d.is_dir() and (m := RUN_FOLDER.fullmatch(d.name)))
-    pool = len(Registry(config.registry).split(seed=config.split_seed).train)
-    counts = sorted({n for n, _ in found if 1 <= n <= pool})
-    if not counts:
-        return []
-    split = Registry(config.registry).split(seed=config.split_seed, train_sizes=counts)
     rows = []
     for n, s in found:
-        if n in split.train_subsets:
-            _, _, settings = run_settings(config, n, s, split.train_subsets[n])
+        if 1 <= n <= len(pool):
+            _, _, settings = run_settings(config, n, s, pool[:n])
             if (row := finished_row(out / f"n{n}_s{s}", settings)) is not None:
                 rows.append(row)
     return rows
