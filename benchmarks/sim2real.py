@@ -155,7 +155,7 @@ class World:
 
 
 def worlds_to_test(args, gt_registry: str, dense: Path, train: list[str], heldout: list[str],
-                recon_world: Optional[tuple[str, list[str]]]) -> list[World]:
+                   recon_world: Optional[tuple[str, list[str]]]) -> list[World]:
     """Every test the arguments ask for: held-out GT streets, the student's own streets in GT, the
     held-out streets as a flat-coloured mesh and with dense GT splats (the root `dense`), and the
     factory's reconstructions of the held-out streets (registry, scene ids)."""
