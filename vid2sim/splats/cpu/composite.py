@@ -210,22 +210,15 @@ def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alph
 
 
 # Backward planes of `pix` after T (plane 0): n_contrib (float32), the 8 per-pixel loss
-# gradients Q (dL/d r g b depth nx ny nz, dL/dalpha * T_final) and the 7 channels S
-# accumulated behind the current splat.
+# gradients Q (dL/d r g b depth nx ny nz, dL/dalpha * T_final) and R = sum_c Q_c S_c, the
+# 7 channels S accumulated behind the current splat weighted by their loss gradients. The
+# pixel's Q do not change from splat to splat, so one plane R stands for the seven S planes
+# of the 3DGS backward: dL/dalpha needs sum_c (c_c - S_c) Q_c = sum_c c_c Q_c - R, and
+# S_c <- alpha c_c + (1 - alpha) S_c becomes R <- alpha sum_c c_c Q_c + (1 - alpha) R.
 P_LAST_B = U64(PLANE)
 P_Q = tuple(U64((2 + i) * PLANE) for i in range(8))
-P_S = tuple(U64((10 + i) * PLANE) for i in range(7))
-N_BWD_PLANES = 17
-
-
-@njit(cache=True, inline="always")
-def _channel(pix, p, q_at, s_at, ck, al, om, ok):
-    """One colour / depth / normal channel of a backward lane: puts the splat in front of
-    the channel behind it (S); returns (Q, (ck - S) Q)."""
-    q = pix[p + q_at]
-    sb = pix[p + s_at]
-    pix[p + s_at] = al * ck + om * sb if ok else sb
-    return q, (ck - sb) * q
+P_R = U64(10 * PLANE)
+N_BWD_PLANES = 11
 
 
 # fastmath (reassociation, contraction) on the backward only: it lets LLVM sum each window's
@@ -238,10 +231,12 @@ def _bwd_window(pix, pb, px0, hi, kf, mx, dy, ccdy2, ca, cb, cc, o, ct, c0, c1, 
     """Take splat kf off LANES pixels of a row (lane j = pixel px0 + j, plane index pb + j),
     back to front, without a branch so the window vectorises. Lanes past the box (j > hi),
     at or behind the pixel's last blended splat, outside the cut-off or below A_MIN add
-    zeros. Returns (bits of the lanes that took part, the window's sums of the 2D gradients
-    in G_* order: mean x y, conic a b c, opacity, r g b, depth, normal x y z, |mean x| |y|)."""
+    zeros. Returns (bits of the lanes that took part, the window's sums: of ds, ds dx and
+    ds dx^2 (ds = dL/dsigma; `_add_sums` turns them into the mean, conic and opacity
+    gradients, dy being the row's), of the r g b, depth and normal x y z gradients, and of
+    |dL/dmean x| and |dL/dmean y|)."""
     hits = U64(0)
-    s_mx = s_my = s_a = s_b = s_c = s_o = ZERO
+    s0 = s1 = s2 = ZERO
     s_r = s_g = s_bl = s_z = s_nx = s_ny = s_nz = s_ax = s_ay = ZERO
     for j in range(LANES):
         p = pb + U64(j)
@@ -252,18 +247,16 @@ def _bwd_window(pix, pb, px0, hi, kf, mx, dy, ccdy2, ca, cb, cc, o, ct, c0, c1, 
         raw = o * e
         al = A_MAX if A_MAX < raw else raw  # min(A_MAX, o e)
         ok = cand & (al >= A_MIN)
-        al = al if ok else ZERO  # a lane that does not take part: T, S unchanged, zero sums
+        al = al if ok else ZERO  # a lane that does not take part: T, R unchanged, zero sums
         om = ONE - al
         Tp = pix[p] / om  # T in front of the splat
         pix[p] = Tp
         w = al * Tp
-        q0, d0 = _channel(pix, p, P_Q[0], P_S[0], c0, al, om, ok)
-        q1, d1 = _channel(pix, p, P_Q[1], P_S[1], c1, al, om, ok)
-        q2, d2 = _channel(pix, p, P_Q[2], P_S[2], c2, al, om, ok)
-        q3, d3 = _channel(pix, p, P_Q[3], P_S[3], c3, al, om, ok)
-        q4, d4 = _channel(pix, p, P_Q[4], P_S[4], c4, al, om, ok)
-        q5, d5 = _channel(pix, p, P_Q[5], P_S[5], c5, al, om, ok)
-        q6, d6 = _channel(pix, p, P_Q[6], P_S[6], c6, al, om, ok)
+        q0, q1, q2, q3 = pix[p + P_Q[0]], pix[p + P_Q[1]], pix[p + P_Q[2]], pix[p + P_Q[3]]
+        q4, q5, q6 = pix[p + P_Q[4]], pix[p + P_Q[5]], pix[p + P_Q[6]]
+        cq = c0 * q0 + c1 * q1 + c2 * q2 + c3 * q3 + c4 * q4 + c5 * q5 + c6 * q6
+        rb = pix[p + P_R]  # sum_c Q_c S_c behind the splat
+        pix[p + P_R] = al * cq + om * rb if ok else rb
         s_r += w * q0
         s_g += w * q1
         s_bl += w * q2
@@ -271,43 +264,44 @@ def _bwd_window(pix, pb, px0, hi, kf, mx, dy, ccdy2, ca, cb, cc, o, ct, c0, c1, 
         s_nx += w * q4
         s_ny += w * q5
         s_nz += w * q6
-        dal = Tp * (d0 + d1 + d2 + d3 + d4 + d5 + d6) + pix[p + P_Q[7]] / om  # dL/dalpha
+        dal = Tp * (cq - rb) + pix[p + P_Q[7]] / om  # dL/dalpha
         dal = dal if ok & (raw <= A_MAX) else ZERO  # clamped at A_MAX: no gradient through it
         ds = -al * dal  # dL/dsigma
         gmx = -ds * (ca * dx + cb * dy)
         gmy = -ds * (cc * dy + cb * dx)
-        s_o += (e if ok else ZERO) * dal
-        s_mx += gmx
-        s_my += gmy
+        s0 += ds
+        s1 += ds * dx
+        s2 += ds * dx * dx
         s_ax += abs(gmx)
         s_ay += abs(gmy)
-        s_a += HALF * ds * dx * dx
-        s_b += ds * dx * dy
-        s_c += HALF * ds * dy * dy
         hits |= U64(ok) << U64(j)
-    return hits, (s_mx, s_my, s_a, s_b, s_c, s_o, s_r, s_g, s_bl, s_z, s_nx, s_ny, s_nz, s_ax,
-                  s_ay)
+    return hits, (s0, s1, s2, s_r, s_g, s_bl, s_z, s_nx, s_ny, s_nz, s_ax, s_ay)
 
 
-@njit(cache=True, inline="always")
-def _add_sums(a, sums):
-    """Adds a window's sums (`_bwd_window` order) into a splat's row a [NG]; written out: a
-    loop over the tuple compiles to a jump table."""
-    a[G_MX] += sums[0]
-    a[G_MY] += sums[1]
-    a[G_A] += sums[2]
-    a[G_B] += sums[3]
-    a[G_C] += sums[4]
-    a[G_O] += sums[5]
-    a[G_R] += sums[6]
-    a[G_G] += sums[7]
-    a[G_BL] += sums[8]
-    a[G_Z] += sums[9]
-    a[G_NX] += sums[10]
-    a[G_NY] += sums[11]
-    a[G_NZ] += sums[12]
-    a[G_AX] += sums[13]
-    a[G_AY] += sums[14]
+@njit(cache=True, fastmath=True, inline="always")
+def _add_sums(a, sums, dy, ca, cb, cc, o):
+    """Adds a window's gradients into a splat's row a [NG] (G_* order) from its sums
+    (`_bwd_window` order). dy is the same in every lane of a window, so the mean, conic and
+    opacity gradients follow from three sums (S0, S1, S2 of ds, ds dx, ds dx^2):
+    dL/dmean x = -(ca S1 + cb dy S0), dL/dmean y = -(cc dy S0 + cb S1), dL/da = S2 / 2,
+    dL/db = dy S1, dL/dc = dy^2 S0 / 2 and dL/do = -S0 / o (ds = -o e dL/dalpha wherever a
+    lane has a gradient); written out: a loop over the tuple compiles to a jump table."""
+    s0, s1 = sums[0], sums[1]
+    a[G_MX] -= ca * s1 + cb * dy * s0
+    a[G_MY] -= cc * dy * s0 + cb * s1
+    a[G_A] += HALF * sums[2]
+    a[G_B] += dy * s1
+    a[G_C] += HALF * dy * dy * s0
+    a[G_O] -= s0 / o if o > ZERO else ZERO
+    a[G_R] += sums[3]
+    a[G_G] += sums[4]
+    a[G_BL] += sums[5]
+    a[G_Z] += sums[6]
+    a[G_NX] += sums[7]
+    a[G_NY] += sums[8]
+    a[G_NZ] += sums[9]
+    a[G_AX] += sums[10]
+    a[G_AY] += sums[11]
 
 
 @njit(cache=True)
@@ -329,8 +323,7 @@ def _bwd_init(x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx, d_color, d_
                 pix[p + P_LAST_B] = ZERO
                 for c in range(8):
                     pix[p + P_Q[c]] = ZERO
-                for c in range(7):
-                    pix[p + P_S[c]] = ZERO
+                pix[p + P_R] = ZERO
                 continue
             T = T_out[py, px]
             last = n_contrib[py, px]
@@ -345,8 +338,7 @@ def _bwd_init(x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_idx, d_color, d_
                 pix[p + P_Q[4 + c]] = d_normal[py, px, c]
             pix[p + P_Q[3]] = d_depth[py, px]
             pix[p + P_Q[7]] = d_alpha[py, px] * T
-            for c in range(7):
-                pix[p + P_S[c]] = ZERO
+            pix[p + P_R] = ZERO
         rlast[ry] = rl
         k_end = max(k_end, rl)
     return k_end
@@ -387,7 +379,7 @@ def _tile_backward(g, gb, n, x0, y0, x1, y1, pix, rlast, T_out, n_contrib, med_i
                                          dy, ccdy2, ca, cb, cc, o, ct, c0, c1, c2, c3, c4, c5,
                                          c6)
                 if hits:
-                    _add_sums(a, sums)
+                    _add_sums(a, sums, dy, ca, cb, cc, o)
     return min(n, k_end)
 
 
