@@ -15,6 +15,8 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
+from vid2sim.factory.recon.ssim_fused import fused_applies, ssim_map_fused
+
 
 # ----------------------------------------------------------------------------- SSIM
 
@@ -74,10 +76,13 @@ def rgb_loss(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] 
              lambda_dssim: float = 0.2) -> torch.Tensor:
     """(1 - l) * L1 + l * (1 - SSIM) over static pixels.
 
-    pred, gt [H, W, 3]; mask [H, W] with 1 = static (used), 0 = dynamic (excluded).
+    pred, gt [H, W, 3]; mask [H, W] with 1 = static (used), 0 = dynamic (excluded). The SSIM
+    map comes from ssim_fused.py (the same map, a hand-written backward) for float32 CPU
+    images, from `ssim_map` otherwise.
     """
     l1 = _masked_mean((pred - gt).abs(), mask)
-    dssim = 1.0 - _masked_mean(ssim_map(pred, gt), mask)
+    smap = ssim_map_fused(pred, gt) if fused_applies(pred, gt) else ssim_map(pred, gt)
+    dssim = 1.0 - _masked_mean(smap, mask)
     return (1.0 - lambda_dssim) * l1 + lambda_dssim * dssim
 
 
