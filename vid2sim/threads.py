@@ -45,3 +45,16 @@ def thread_pools(threads: int) -> Iterator[None]:
             os.environ.pop("OMP_NUM_THREADS", None)
         else:
             os.environ["OMP_NUM_THREADS"] = before[2]
+
+
+@contextmanager
+def torch_threads(threads: int) -> Iterator[None]:
+    """Bound torch's intra-op pool alone to `threads` while inside (numba's stays as it is), then
+    restore it: a loop whose heavy work is numba kernels and whose torch ops are many small
+    images runs those on one thread, where waking a second costs more than it saves."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(max(1, threads))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

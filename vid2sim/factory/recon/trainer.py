@@ -35,6 +35,7 @@ from vid2sim.splats.model import GaussianModel
 from vid2sim.splats.ply import write_ply
 from vid2sim.splats.render import render
 from vid2sim.splats.types import RasterSettings
+from vid2sim.threads import torch_threads
 from vid2sim.versioning import config_hash
 
 CHECKPOINT = "checkpoint.pt"
@@ -207,7 +208,15 @@ def holdout_l1(conf: ReconConfig, params: SplatParams, views: list[View], deg: i
 
 def train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[int, DepthPrior],
           out_dir: Path, key: str, log_every: int = 100) -> tuple[GaussianModel, dict]:
-    """Optimise the splats; returns (model, training summary)."""
+    """Optimise the splats; returns (model, training summary). The splat kernels run on numba's
+    threads; the losses' torch ops, on images of a few ten thousand pixels, on one thread
+    (GoPro clip, 2 CPUs: training 116.7 -> 110.0 s wall, 178 -> 165 CPU-s)."""
+    with torch_threads(1):
+        return _train(conf, clip, views, priors, out_dir, key, log_every)
+
+
+def _train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[int, DepthPrior],
+           out_dir: Path, key: str, log_every: int) -> tuple[GaussianModel, dict]:
     torch.manual_seed(conf.seed)
     rng = np.random.default_rng(conf.seed)
     train_views = [v for v in views if v.split == "train"]
