@@ -221,10 +221,13 @@ def geo_consistency_loss(normals: torch.Tensor, depth: torch.Tensor,
 
 
 def scale_loss(log_scales: torch.Tensor) -> torch.Tensor:
-    """Flat-Gaussian loss: 1/N sum_i min(s_i1, s_i2, s_i3). log_scales [N, 3] -> scalar."""
+    """Flat-Gaussian loss: 1/N sum_i min(s_i1, s_i2, s_i3). log_scales [N, 3] -> scalar.
+
+    exp is increasing, so the smallest scale is exp of the smallest log scale: one exp per
+    Gaussian instead of three (the same value and gradient)."""
     if log_scales.shape[0] == 0:
         return log_scales.sum() * 0.0
-    return torch.exp(log_scales).min(dim=1).values.mean()
+    return torch.exp(log_scales.min(dim=1).values).mean()
 
 
 def psnr(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] = None) -> float:
