@@ -9,9 +9,11 @@ Clips (real ones from ../shared/data; skipped when absent):
   lund       opensfm_lund_street (29 iPhone photos, EXIF focal): registers and reports.
   synthetic  the procedural street (10 s, 854x480): ATE, metric scale and ground normal vs GT.
 Prints registered fraction, reprojection error, track length, ATE, seconds per stage and the
-hardware line. Usage:
+hardware line. `--free-threads` runs COLMAP's matching and mappers on the stage's threads too
+(`SfMConfig.deterministic = False`: faster, no longer the same model bit for bit): what
+reproducibility costs. Usage:
     .venv/bin/python benchmarks/sfm.py [--clips gopro,kitti,lund,synthetic] [--preset fast]
-                                       [--work /tmp/vid2sim-bench-sfm]
+                                       [--work /tmp/vid2sim-bench-sfm] [--free-threads]
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from vid2sim.factory.runtime.runner import run_stage
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 RUN: Run  # the current run (set in main)
+SFM_OVERRIDES: dict = {}  # SfMConfig fields every clip's preset gets (set in main)
 
 
 def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
@@ -62,6 +65,8 @@ def sfm_and_metric(sconf: Any, mconf: Any, images: Path, masks_dir: Any, work: P
 
 def report(name: str, q: dict, times: dict, extra: dict) -> dict:
     total = sum(times.values())
+    if SFM_OVERRIDES.get("deterministic") is False:
+        name += ", matching and mappers on the stage's threads"
     print(f"\n== {name}")
     print(f"registered {q['num_registered']}/{q['num_frames']} ({q['registered_fraction']:.1%}), "
           f"mapper {q['mapper']}, camera {q['camera_model']} "
@@ -115,7 +120,7 @@ def run_gopro(work: Path, preset: str) -> dict:
     src = DATA / "gopro_max_sidewalk"
     times: dict = {}
     images, masks_dir = decode_and_mask(src / "max-heromode.mp4", work, times, 848)
-    sconf = sfm.preset(preset, lens=LensHint(make="GoPro", model="MAX"))
+    sconf = sfm.preset(preset, **SFM_OVERRIDES, lens=LensHint(make="GoPro", model="MAX"))
     _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.5), images,
                                 masks_dir, work, times)
     est = load_posed_clip(pdir)
@@ -167,7 +172,7 @@ def run_kitti(work: Path, preset: str) -> dict:
 
     src = DATA / "kitti_rural"
     times: dict = {}
-    sconf = sfm.preset(preset, camera_model="PINHOLE", camera_params=kitti_K(src / "calib.txt"),
+    sconf = sfm.preset(preset, **SFM_OVERRIDES, camera_model="PINHOLE", camera_params=kitti_K(src / "calib.txt"),
                        max_image_size=1241)
     _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.65),
                                 src / "image_l", None, work, times)
@@ -185,7 +190,7 @@ def run_lund(work: Path, preset: str) -> dict:
 
     src = DATA / "opensfm_lund_street"
     times: dict = {}
-    _, pdir, q = sfm_and_metric(sfm.preset(preset, max_image_size=1024), metric.MetricConfig(),
+    _, pdir, q = sfm_and_metric(sfm.preset(preset, **SFM_OVERRIDES, max_image_size=1024), metric.MetricConfig(),
                                 src / "images", None, work, times)
     return report("opensfm_lund_street (29 photos)", q, times, frame_facts(pdir))
 
@@ -200,7 +205,7 @@ def run_synthetic(work: Path, preset: str) -> dict:
     clip = render_video(generate_street(conf), conf, work / "render")
     times: dict = {}
     images, masks_dir = decode_and_mask(clip.video, work, times, 854)
-    _, pdir, q = sfm_and_metric(sfm.preset(preset), metric.MetricConfig(capture_height_m=1.5),
+    _, pdir, q = sfm_and_metric(sfm.preset(preset, **SFM_OVERRIDES), metric.MetricConfig(capture_height_m=1.5),
                                 images, masks_dir, work, times)
     ev = evaluate(load_posed_clip(pdir), load_posed_clip(work / "render"))
     R = np.asarray(ev["ate"]["rotation"])
@@ -225,9 +230,13 @@ def main() -> None:
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--work", default="/tmp/vid2sim-bench-sfm")
     ap.add_argument("--keep", action="store_true", help="reuse finished stages in --work")
+    ap.add_argument("--free-threads", action="store_true",
+                    help="matching and mappers on the stage's threads (not reproducible bit for bit)")
     add_run_args(ap)
     a = ap.parse_args()
     global RUN
+    if a.free_threads:
+        SFM_OVERRIDES["deterministic"] = False
     with Run("sfm", a) as RUN:
         bench(a)
 
