@@ -3,12 +3,14 @@
 Reads: a `Source` (see sources.py) and an optional window (start, end) in seconds.
 Writes into `out_dir`:
   images/NNNNNN.jpg  kept frames, resized so the long side <= max_side, faces and plates blurred
-                     IN MEMORY before the write (raw frames never touch the disk)
+                     IN MEMORY before the write (raw frames never touch the disk); EXIF with the
+                     camera's make, model and 35 mm focal length only, where the source states
+                     them (lens_tags.py: the sfm stage starts its camera from them)
   frames.parquet     one row per sampled frame: index (output index, null if dropped),
                      image, source_frame, timestamp, sharpness, motion, level, kept,
                      reason (null | black | blur | duplicate), faces, plates
   clip.json          source uri + sha256, window, source fps/size, sample fps, size,
-                     counts, anonymiser (detectors and settings), config
+                     counts, anonymiser (detectors and settings), lens tags, config
   stage.json         the done-marker, written by the runner (runtime/runner.py)
 
 Filters (defaults, see DecodeConfig):
@@ -38,6 +40,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from vid2sim.factory.ingest import lens_tags
+from vid2sim.factory.ingest.lens_tags import LensTags
 from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig
 from vid2sim.factory.ingest.sources import Source, resolve_source
 from vid2sim.factory.runtime.stage_cache import StageError, StageWork
@@ -46,7 +50,7 @@ from vid2sim.ranges import checked
 from vid2sim.versioning import to_jsonable
 
 STAGE = "decode"
-STAGE_VERSION = 1  # bump when this stage's outputs change for the same inputs
+STAGE_VERSION = 2  # bump when this stage's outputs change for the same inputs (2: lens EXIF)
 
 @dataclass(frozen=True)
 class DecodeOutputs:
@@ -102,6 +106,7 @@ class Sample:
     level: float = 0.0
     motion: float = float("nan")
     reason: Optional[str] = None  # None = kept
+    lens: LensTags = LensTags()  # what the source says about its camera
 
 
 # --------------------------------------------------------------------------- reading
@@ -118,11 +123,12 @@ def sample_video(path: Path, conf: DecodeConfig, window: Optional[tuple[float, f
     info = probe_video(path)
     start, end = (window or (0.0, None))
     step, half = 1.0 / conf.fps, 0.5 / max(info.fps, 1e-3)
+    lens = lens_tags.from_video(path)
     samples, next_t, decoded = [], start, 0
     for idx, t, img in iter_frames(path, start, end):
         decoded += 1
         if t + half >= next_t:
-            samples.append(Sample(idx, t, _resize(img, conf.max_side)))
+            samples.append(Sample(idx, t, _resize(img, conf.max_side), lens=lens))
             while next_t <= t + half:
                 next_t += step
     if not samples:
@@ -143,7 +149,8 @@ def sample_images(files: list[Path], conf: DecodeConfig) -> tuple[list[Sample], 
         if img is None:
             raise StageError(STAGE, "not_an_image", f"{p}: cannot be read as an image")
         size = size or [img.shape[1], img.shape[0]]
-        samples.append(Sample(i, i / conf.image_fps, _resize(img, conf.max_side)))
+        samples.append(Sample(i, i / conf.image_fps, _resize(img, conf.max_side),
+                              lens=lens_tags.from_image(p)))
     return samples, {"source_fps": conf.image_fps, "source_size": size, "source_frames": len(files),
                      "timestamps": "nominal"}
 
@@ -243,12 +250,15 @@ def _init_worker(face_conf: FaceConfig, plate_conf: PlateConfig, quality: int) -
     _WORKER["blur"], _WORKER["quality"] = Anonymiser(face_conf, plate_conf), quality
 
 
-def _blur_and_write(job: tuple[np.ndarray, str]) -> tuple[int, int]:
-    """Worker: blur faces and plates in memory, then write the JPEG; returns (faces, plates)."""
-    img, path = job
+def _blur_and_write(job: tuple[np.ndarray, str, bytes]) -> tuple[int, int]:
+    """Worker: blur faces and plates in memory, then write the JPEG with the lens EXIF segment
+    (b"": none); returns (faces, plates)."""
+    img, path, exif = job
     img, faces, plates = _WORKER["blur"](img)
-    if not cv2.imwrite(path, img, [cv2.IMWRITE_JPEG_QUALITY, _WORKER["quality"]]):
-        raise OSError(f"cannot write {path}")
+    ok, buf = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, _WORKER["quality"]])
+    if not ok:
+        raise OSError(f"cannot encode {path}")
+    Path(path).write_bytes(lens_tags.with_exif(buf.tobytes(), exif))
     return len(faces), len(plates)
 
 
@@ -257,7 +267,10 @@ def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int
     images = out_dir / OUTPUTS.images
     images.mkdir()
     kept = [i for i, s in enumerate(samples) if s.reason is None]
-    jobs = [(samples[i].image, str(images / f"{k:06d}.jpg")) for k, i in enumerate(kept)]
+    segments: dict[LensTags, bytes] = {}
+    jobs = [(samples[i].image, str(images / f"{k:06d}.jpg"),
+             segments.setdefault(samples[i].lens, samples[i].lens.exif_segment()))
+            for k, i in enumerate(kept)]
     if conf.workers <= 1 or len(jobs) < 32:  # a process pool costs ~1-2 s to start
         _init_worker(conf.faces, conf.plates, conf.jpeg_quality)
         counts = [_blur_and_write(j) for j in jobs]
@@ -295,7 +308,8 @@ def build(conf: DecodeConfig, src: Source, window: Optional[tuple[float, float]]
     counts["plates_blurred"] = int(sum(p for _, p in found.values()))
     clip = {"source": src.uri, "sha256": src.sha256, "kind": src.kind, "window": window,
             "sample_fps": conf.fps if src.kind == "video" else conf.image_fps, "size": [w, h],
-            **facts, "counts": counts, **blurrer.record(), "config": to_jsonable(conf)}
+            **facts, "counts": counts, **blurrer.record(), "lens": to_jsonable(kept[0].lens),
+            "config": to_jsonable(conf)}
     (out_dir / OUTPUTS.clip).write_text(json.dumps(to_jsonable(clip), indent=2))
     summary = {k: counts[k] for k in ("sampled", "kept", "dropped_black", "dropped_blur", "dropped_duplicate",
                                       "faces_blurred", "plates_blurred")}
