@@ -15,17 +15,10 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
-from vid2sim.factory.recon.ssim_fused import fused_applies, ssim_map_fused
+from vid2sim.factory.recon.ssim_fused import fused_applies, gaussian_window_1d, ssim_map_fused
 
 
 # ----------------------------------------------------------------------------- SSIM
-
-def gaussian_window_1d(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
-    """Normalised 1D Gaussian [size]."""
-    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
-    g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
-    return g / g.sum()
-
 
 def gaussian_window(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
     """Normalised 2D Gaussian window [size, size] (outer product of the 1D one)."""

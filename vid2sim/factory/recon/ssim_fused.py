@@ -26,11 +26,16 @@ C1, C2 = np.float32(0.01 ** 2), np.float32(0.03 ** 2)
 WINDOW, SIGMA = 11, 1.5  # losses.ssim_map's defaults
 
 
+def gaussian_window_1d(size: int = 11, sigma: float = 1.5) -> torch.Tensor:
+    """Normalised 1D Gaussian [size]: the SSIM window of this module and of `losses.ssim_map`."""
+    x = torch.arange(size, dtype=torch.float32) - (size - 1) / 2
+    g = torch.exp(-(x ** 2) / (2 * sigma ** 2))
+    return g / g.sum()
+
+
 @lru_cache(maxsize=1)
 def _taps() -> np.ndarray:
-    """The reference's 1D Gaussian window [WINDOW] (imported here: losses imports this module)."""
-    from vid2sim.factory.recon.losses import gaussian_window_1d
-
+    """The window [WINDOW] as float32 numpy."""
     return gaussian_window_1d(WINDOW, SIGMA).numpy().astype(np.float32)
 
 
