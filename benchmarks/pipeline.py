@@ -6,7 +6,8 @@
 
 `gopro` reads ../shared/data (skips with a message when absent). `speed` ingests the demo street
 (generated, with ground truth) and the GoPro clip (when present) once with each reconstruction
-preset (`--before fast --after quick` by default, everything else equal) and prints per-stage
+preset (`--before fast --after quick` by default, everything else equal; `--after none` runs the
+`before` column alone, e.g. to compare two commits) and prints per-stage
 wall seconds, the recon stage's process CPU seconds and the quality figures side by side: held-out
 PSNR / SSIM, the walked corridor (path on walkable, pieces, corridor area) and, on the demo
 street, walkable IoU and collision-mesh accuracy / completeness against ground truth. `parallel` compares
@@ -189,15 +190,18 @@ def bench_speed(run: Run, args: argparse.Namespace) -> None:
         run.skip("gopro", f"{video} is absent (benchmarks read ../shared/data beside the project)")
     for name, path, synth_dir, kw in clips:
         cols = {}
-        for label, recon in (("before", args.before), ("after", args.after)):
+        columns = [("before", args.before)] + ([("after", args.after)] if args.after != "none" else [])
+        for label, recon in columns:
             work = root / f"{name.replace(' ', '-')}-{label}"
             wall, result, registry = ingest_with(path, work, recon, **kw)
             cols[label] = {"recon preset": recon, "video to registered scene s": wall,
                            **clip_figures(result, registry, synth_dir)}
             run.record_all(f"{name}: {label} ({recon})", {k: v for k, v in cols[label].items()
                                                           if isinstance(v, (int, float))})
+        cols.setdefault("after", {})
         keys = list(dict.fromkeys([*cols["before"], *cols["after"]]))
-        print(f"\n## {name}: recon preset {args.before} (before) vs {args.after} (after)")
+        versus = f" vs {args.after} (after)" if args.after != "none" else ""
+        print(f"\n## {name}: recon preset {args.before} (before){versus}")
         print(f"{'figure':<36}{'before':>14}{'after':>14}")
         for k in keys:
             print(f"{k:<36}{_fmt(cols['before'].get(k)):>14}{_fmt(cols['after'].get(k)):>14}")
@@ -214,7 +218,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("what", choices=["gopro", "parallel", "speed"])
     ap.add_argument("--before", default="fast", help="speed: the recon preset of the 'before' column")
-    ap.add_argument("--after", default="quick", help="speed: the recon preset of the 'after' column")
+    ap.add_argument("--after", default="quick",
+                    help="speed: the recon preset of the 'after' column ('none': the 'before' column alone)")
     ap.add_argument("--clips", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
