@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+from vid2sim.factory.ingest import lens_tags
+
 MODELS = ("OPENCV", "OPENCV_FISHEYE", "SIMPLE_RADIAL", "RADIAL", "PINHOLE", "SIMPLE_PINHOLE")
 WIDE_MAKERS = ("gopro", "insta360", "dji", "akaso", "sjcam", "yi ", "garmin virb")
 WIDE_FOV_DEG = 100.0
@@ -53,22 +55,17 @@ def focal_from_fov(width: int, hfov_deg: float) -> float:
 
 
 def exif_hint(image: Path) -> LensHint:
-    """Make, model and a pixel focal from an image's EXIF (35 mm equivalent), when present."""
-    try:
+    """Make, model and a pixel focal from an image's EXIF (35 mm equivalent), when present: the
+    tags the decode stage keeps in its frames (ingest/lens_tags.py)."""
+    tags = lens_tags.from_image(image)
+    hint = LensHint(make=tags.make, model=tags.model)
+    if tags.focal_35mm:
         from PIL import Image
 
         with Image.open(image) as im:
-            exif = im.getexif()
             width = im.size[0]
-            sub = exif.get_ifd(0x8769) if exif else {}
-    except (OSError, ValueError):
-        return LensHint()
-    hint = LensHint(make=str(exif.get(0x010F, "") or "").strip("\x00 "),
-                    model=str(exif.get(0x0110, "") or "").strip("\x00 "))
-    f35 = sub.get(0xA405)  # FocalLengthIn35mmFilm
-    if f35:
-        hint.focal_px = float(f35) / 36.0 * width  # 36 mm = full-frame width
-        hint.hfov_deg = math.degrees(2 * math.atan(18.0 / float(f35)))
+        hint.focal_px = tags.focal_35mm / 36.0 * width  # 36 mm = full-frame width
+        hint.hfov_deg = math.degrees(2 * math.atan(18.0 / tags.focal_35mm))
     return hint
 
 
