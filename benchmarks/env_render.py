@@ -277,8 +277,8 @@ def fast_phases(fb: FastBatch, scene: StaticScene, cams: list, ts: float, fill: 
             view, _, k = camera_arrays(cam)
             t0 = time.process_time()
             n, _ = cull_project(0, len(scene.centers), scene.centers, scene.r_means, scene.rho,
-                                scene.cell_start, fb.packed, view, k, W, H, st.near, st.far, -1.0,
-                                q[0], box[0])
+                                scene.cell_start, fb.packed, fb.all_cells, view, k, W, H, st.near,
+                                st.far, -1.0, q[0], box[0])
             t1 = time.process_time()
             order = depth_order(q[0], n, keys[0], keys[1], rows[0], rows[1])
             off = np.empty(tx * ty + 1, np.int64)

@@ -8,6 +8,8 @@ defaults promise >= 32 dB mean and >= 26 dB worst PSNR (docs/envs.md); this chec
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium
 import numpy as np
 import pytest
@@ -29,20 +31,61 @@ def _psnr(a: np.ndarray, b: np.ndarray) -> float:
 
 
 @pytest.fixture(scope="module")
-def env(tmp_path_factory):
+def registry(tmp_path_factory):
     root = tmp_path_factory.mktemp("fastfid")
     reg = Registry(root / "registry")
     reg.add(street_bundle(root))
+    return reg
+
+
+def _env(registry: Registry, fast: FastRenderConfig) -> gymnasium.Env:
     simready._CACHE.clear()
-    e = gymnasium.make("vid2sim/PointNav-v0", registry=reg.root, scenes="synthetic-street-s11",
-                       checkout_root=root / "checkouts", fidelity="fast")
+    return gymnasium.make("vid2sim/PointNav-v0", registry=registry.root, scenes="synthetic-street-s11",
+                          checkout_root=Path(registry.root).parent / "checkouts", fidelity="fast", fast=fast)
+
+
+@pytest.fixture(scope="module")
+def env(registry):
+    e = _env(registry, FastRenderConfig())
+    yield e
+    e.close()
+
+
+@pytest.fixture(scope="module")
+def env_view_sets(registry):
+    e = _env(registry, FastRenderConfig(view_keep_mass=0.98))
     yield e
     e.close()
 
 
 def test_default_fast_path_agrees_with_exact(env):
+    assert env.unwrapped.config.fast == FastRenderConfig()  # the default path
+    _check_against_exact(env)
+
+
+def test_view_sets_keep_the_fast_paths_fidelity(env_view_sets):
+    """With view sets each frame draws part of the sim-ready set, within the same bars; the
+    sets are written beside the set's PLY and read back by a later process."""
+    env = env_view_sets
+    _check_against_exact(env)
     u = env.unwrapped
-    assert u.config.fast == FastRenderConfig()  # the default path
+    sets = u.world.view.sim.views
+    assert sets is not None and len(sets.masks) >= 1024
+    drawn = [sets.mask(u.last_world_to_cam)]
+    assert drawn[0] is not None  # the expert's camera has measured views near it
+    kept = sum(bin(int(w)).count("1") for w in drawn[0])
+    assert kept < u.world.view.sim.model.num
+    files = sorted((u.world.assets.bundle_dir.parent / "simready").glob("simready-*.views.npz"))
+    assert len(files) == 1
+    simready._CACHE.clear()  # a new process: the set and its view sets come from disk
+    again = simready.sim_ready_set(u.world.assets.content_key(), u.world.assets.splats,
+                                   u.world.assets.walkable, u.config.camera, u.config.fast,
+                                   cache_dir=files[0].parent)
+    np.testing.assert_array_equal(again.views.masks, sets.masks)
+
+
+def _check_against_exact(env: gymnasium.Env) -> None:
+    u = env.unwrapped
     env.reset(seed=3)
     view = u.world.view
     assert isinstance(view, FastSplatView)

@@ -59,8 +59,8 @@ class Range:
 SIGNED = {"ground_z_m": None, "failure": None, "exposure_ev": None, "score_threshold": None,
           "camera_params": None, "first_octave": -1, "sde_sample_freq": -1, "min_ncc": -1,
           "pitch_deg": -90, "yaw_deg": None, "sun_direction": -1}
-UNIT = re.compile(r"(_prob|fraction)$|^(gamma|tau|beta0|beta_decay|min_beta|keep_mass|t_stop|lambda_dssim|"
-                  r"min_alpha|max_dynamic|min_area|people_min_motion|segment_min_motion|min_opacity|"
+UNIT = re.compile(r"(_prob|fraction)$|^(gamma|tau|beta0|beta_decay|min_beta|keep_mass|view_keep_mass|t_stop|"
+                  r"lambda_dssim|min_alpha|max_dynamic|min_area|people_min_motion|segment_min_motion|min_opacity|"
                   r"static_fraction|walk_lateral)$")
 POSITIVE = re.compile(r"^(fps|image_fps|fallback_fps|clip_seconds|learning_rate|capture_height_m|wheelbase|"
                       r"max_speed|length|width|height|vfov_deg|near|far|depth_max|success_radius|step_m|"
@@ -79,7 +79,7 @@ COUNTS = re.compile(r"^(iterations|batch_size|n_envs|trials|total_steps|frame_st
                     r"n_steers|n_splats|min_chars|block_px)$")
 UPPER = {"jpeg_quality": 100, "fog_color": 255, "frames": 6, "vector_history": 6, "sh_degree": 3, "port": 65535,
          "vfov_deg": 179, "max_steer_deg": 89, "max_tilt_deg": 90, "ground_normal_deg": 90,
-         "static_min_tri_angle_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
+         "static_min_tri_angle_deg": 180, "view_heading_deg": 180, "start_yaw_noise_deg": 180, "hfov_deg": 179,
          # sizes that decide an allocation (an image, a frame stack) are capped too
          "width": 8192, "height": 8192, "max_side": 16384, "max_image_size": 16384, "analysis_width": 8192,
          "max_width": 8192, "frame_stack": 64,

@@ -88,8 +88,9 @@ class FastSplatView:
             c = self.conf
             self._view = FastView(self.sim.batch, c.width, c.height, c.near, c.far,
                                   c.cov_cull_alpha, self.fast.t_stop, EMPTY_ALPHA)
-        K = self.K
-        return self._view.draw(world_to_cam, K[0, 0], K[1, 1], K[0, 2], K[1, 2])
+        K, views = self.K, self.sim.views
+        mask = None if views is None else views.mask(world_to_cam)
+        return self._view.draw(world_to_cam, K[0, 0], K[1, 1], K[0, 2], K[1, 2], mask)
 
 
 class MeshView:

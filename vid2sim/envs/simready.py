@@ -9,13 +9,16 @@ same bundle with the same settings share one set (`_CACHE`), and the set is writ
 (named by a hash of the bundle's splats and the settings) to `$VID2SIM_SIMREADY_CACHE`, else to
 `simready/` beside the env's bundle checkouts, and read back by later processes: measuring the
 default 1024 views costs about 15 s of one core per scene (a colour fit, when asked for, about
-a minute per 600 steps), paid once.
+a minute per 600 steps), paid once. The same pass records each view's own set (view sets,
+`splats/cpu/env_view_sets.py`), written beside the PLY as `simready-<key>.views.npz`; a frame
+then draws only what the measured views near its camera needed.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import uuid
 from dataclasses import asdict, dataclass
@@ -30,7 +33,8 @@ from vid2sim.formats.walkable import WalkableGrid
 from vid2sim.splats import Camera, GaussianModel, RasterSettings, read_ply, write_ply
 from vid2sim.splats.cpu import StaticScene, StaticSceneConfig
 from vid2sim.splats.cpu.env_fast_batch import FastBatch
-from vid2sim.splats.cpu.env_simready import SimReadyConfig, sim_ready
+from vid2sim.splats.cpu.env_simready import SimReadyConfig, sim_ready_views
+from vid2sim.splats.cpu.env_view_sets import CellMasks, ViewSets
 
 CACHE_ENV = "VID2SIM_SIMREADY_CACHE"
 _CACHE: dict[str, "SimReadySet"] = {}
@@ -41,6 +45,17 @@ class SimReadySet:
     model: GaussianModel  # the kept splats, SH 0 (baked colours)
     batch: FastBatch  # packed for the fast kernels (not thread-safe: scratch buffers)
     full_splats: int
+    views: Optional[CellMasks] = None  # the view sets as cell masks of `batch` (None: off)
+
+
+def measured_views(grid: WalkableGrid, fast: FastRenderConfig) -> int:
+    """How many robot views the set is measured on: `fast.views`; with view sets
+    `fast.views_per_m2` per square metre of walkable map where that is more (a frame needs
+    measured views near it everywhere)."""
+    if fast.view_keep_mass <= 0:
+        return fast.views
+    area = float(np.count_nonzero(grid.grid)) * grid.resolution ** 2
+    return max(fast.views, math.ceil(fast.views_per_m2 * area))
 
 
 def view_cameras(grid: WalkableGrid, conf: CameraConfig, n: int, seed: int) -> list[Camera]:
@@ -55,8 +70,9 @@ def view_cameras(grid: WalkableGrid, conf: CameraConfig, n: int, seed: int) -> l
 
 
 def cache_key(bundle_key: str, conf: CameraConfig, fast: FastRenderConfig) -> str:
+    sets = [fast.views_per_m2, fast.view_keep_mass] if fast.view_keep_mass > 0 else []
     text = json.dumps([bundle_key, asdict(conf), fast.keep_mass, fast.fit_iterations, fast.views,
-                       fast.seed], sort_keys=True, default=str)
+                       fast.seed, *sets], sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
@@ -64,23 +80,39 @@ def sim_ready_set(bundle_key: str, model: GaussianModel, grid: WalkableGrid, con
                   fast: FastRenderConfig, cache_dir: Optional[Path] = None) -> SimReadySet:
     """The scene's sim-ready set for the fast path (memory cache, then the disk cache in
     $VID2SIM_SIMREADY_CACHE or cache_dir (None: none), then made and written there)."""
-    key = cache_key(bundle_key, conf, fast)
-    if key in _CACHE:
-        return _CACHE[key]
+    key = cache_key(bundle_key, conf, fast)  # names the files: what measuring depends on
+    held = f"{key}-{fast.cell_size}-{fast.view_radius}-{fast.view_heading_deg}"  # + how it is drawn
+    if held in _CACHE:
+        return _CACHE[held]
     folder = os.environ.get(CACHE_ENV) or cache_dir
     path: Optional[Path] = Path(folder) / f"simready-{key}.ply" if folder else None
-    if path is not None and path.is_file():
+    views_path = None if path is None else path.with_name(f"simready-{key}.views.npz")
+    with_views = fast.view_keep_mass > 0
+    if path is not None and path.is_file() and (not with_views or views_path.is_file()):
         small = read_ply(path)
+        views = ViewSets.load(views_path) if with_views else None
     else:
-        cams = view_cameras(grid, conf, fast.views, fast.seed)
-        st = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
-                            cov_cull_alpha=conf.cov_cull_alpha, active_sh_degree=model.sh_degree)
-        small, _ = sim_ready(model, cams, SimReadyConfig(
-            keep_mass=fast.keep_mass, bake_colour=True, fit_iterations=fast.fit_iterations,
-            width=conf.width, height=conf.height), st)
-        if path is not None:  # a unique temporary name: several processes may make it at once
-            tmp = write_ply(small, path.with_name(f"{path.stem}-{os.getpid()}-{uuid.uuid4().hex}.tmp"))
-            os.replace(tmp, path)
+        small, views = _measure(model, grid, conf, fast)
+        if path is not None:  # unique temporary names: several processes may make them at once
+            tmp = f"-{os.getpid()}-{uuid.uuid4().hex}.tmp"
+            if views is not None:
+                os.replace(views.save(views_path.with_name(views_path.name + tmp)), views_path)
+            os.replace(write_ply(small, path.with_name(path.stem + tmp)), path)
     scene = StaticScene(small, StaticSceneConfig(cell_size=fast.cell_size, per_splat_outputs=False))
-    _CACHE[key] = SimReadySet(small, FastBatch([scene]), model.num)
-    return _CACHE[key]
+    masks = None if views is None else CellMasks(views, scene, fast.view_radius, fast.view_heading_deg)
+    _CACHE[held] = SimReadySet(small, FastBatch([scene]), model.num, masks)
+    return _CACHE[held]
+
+
+def _measure(model: GaussianModel, grid: WalkableGrid, conf: CameraConfig,
+             fast: FastRenderConfig) -> tuple[GaussianModel, Optional[ViewSets]]:
+    """The sim-ready splats and (when fast.view_keep_mass > 0) their view sets."""
+    cams = view_cameras(grid, conf, measured_views(grid, fast), fast.seed)
+    st = RasterSettings(conf.width, conf.height, near=conf.near, far=conf.far,
+                        cov_cull_alpha=conf.cov_cull_alpha, active_sh_degree=model.sh_degree)
+    small, _, sets = sim_ready_views(model, cams, SimReadyConfig(
+        keep_mass=fast.keep_mass, bake_colour=True, fit_iterations=fast.fit_iterations,
+        view_keep_mass=fast.view_keep_mass, width=conf.width, height=conf.height), st)
+    if fast.view_keep_mass <= 0:
+        return small, None
+    return small, ViewSets.from_cameras(cams, sets, small.num)

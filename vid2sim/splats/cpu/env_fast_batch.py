@@ -18,7 +18,7 @@ import torch
 from ..camera import Camera
 from ..types import RasterSettings
 from .env_batch import EnvFrames, check_batch
-from .env_fast_frame import NQ, NS, pack_splats, render_fast_frames
+from .env_fast_frame import ALL_BITS, NQ, NS, pack_splats, render_fast_frames
 from .project import camera_arrays
 
 TILE_SHIFT = 5  # fast composite tiles are 2^5 = 32 px, the most it takes (128x72: 4 x 3 tiles)
@@ -44,6 +44,7 @@ class FastBatch:
                                   cat([s.opacity for s in scenes]),
                                   cat([s.rgb for s in scenes]))  # [NP, G] float32 planes
         self.max_rows = max(1, max(len(s.means) for s in scenes))
+        self.all_cells = np.full(len(self.centers), ALL_BITS, np.uint64)  # [C] every row of every cell
         self._scratch: Optional[tuple] = None
 
     def _scratch_for(self, workers: int, H: int, W: int) -> tuple:
@@ -83,7 +84,8 @@ class FastBatch:
         ts = max(float(t_stop), 1e-4)
         t_fill = max(ts, 1.0 - float(fill_alpha))
         render_fast_frames(ids, self.cell_lo, self.centers, self.r_means, self.rho,
-                           self.cell_start, self.packed, views, cams, W, H, int(tile_shift),
+                           self.cell_start, self.packed, self.all_cells, views, cams, W, H,
+                           int(tile_shift),
                            float(st.near), float(st.far), cov_alpha, ts, t_fill,
                            np.asarray(background, np.float32).reshape(3), q, box, keys, rows,
                            color, rgb, alpha, depth, stats, workers)

@@ -21,7 +21,8 @@ branch per pixel (pixels outside the ellipse or already stopped get weight 0), w
 vectorises (8 float32 lanes: one AVX2 register).
 
 Per frame in one thread: cull culling cells (bounding spheres, `env_scene_kernels.sphere_outside`)
-and project only the splats of the cells that survive, straight into a compact list; radix
+and project only the splats of the cells that survive (and that the frame's cell mask keeps:
+`env_view_sets.py`), straight into a compact list; radix
 sort by depth; bin into small tiles; composite tile by tile front to back (per-pixel and
 per-tile early stop); finish over the background. `render_fast_frames` runs N cameras
 (possibly different packed scenes) over a shared counter, one frame per worker at a time.
@@ -168,12 +169,15 @@ def _project_chunk(buf, m, W, tw, fx, fy, cx, cy, lims, width, height, near, far
 
 
 @njit(cache=True)
-def cull_project(c0, c1, centers, r_means, rho, cell_start, pl, view, cam, width, height, near,
-                 far, cov_alpha, q, box):
+def cull_project(c0, c1, centers, r_means, rho, cell_start, pl, cell_mask, view, cam, width,
+                 height, near, far, cov_alpha, q, box):
     """Project the splats of cells c0:c1 that survive the frustum test into compact rows of
     q [R, NQ] / box [R, 4] (only splats that reach a pixel); returns (rows, splats tested).
-    pl [NP, G]: the packed records as planes (`FastBatch.planes`); each cell is projected in
-    chunks of PCH splats by the vectorised `_project_chunk`, then compacted."""
+    pl [NP, G]: the packed records as planes (`FastBatch.planes`); cell_mask [C] uint64: the
+    rows of each cell to consider (bit j: row cell_start[c] + j, for cells of at most 64 rows;
+    ALL_BITS: every row of a cell of any size; 0: skip the cell). The kept rows of a cell are
+    gathered in chunks of PCH splats, projected by the vectorised `_project_chunk`, then
+    compacted."""
     W, tw, planes, grow = frustum_planes(view, cam, width, height)
     Wf = (F32(W[0]), F32(W[1]), F32(W[2]), F32(W[3]), F32(W[4]), F32(W[5]), F32(W[6]),
           F32(W[7]), F32(W[8]))
@@ -183,25 +187,28 @@ def cull_project(c0, c1, centers, r_means, rho, cell_start, pl, view, cam, width
     lims = (F32(lp[0]), F32(lp[1]), F32(lp[2]), F32(lp[3]))
     nearf, farf, cova = F32(near), F32(far), F32(cov_alpha)
     buf = np.empty(NB * PCH, np.float32)
+    rows = np.empty(PCH, np.int64)  # packed row of each chunk slot
     n = 0
     tested = 0
     for c in range(c0, c1):
-        if sphere_outside(centers[c, 0], centers[c, 1], centers[c, 2], r_means[c], rho[c], W,
-                          tw, planes, grow, near, far):
+        mw = cell_mask[c]
+        if mw == U64(0) or sphere_outside(centers[c, 0], centers[c, 1], centers[c, 2],
+                                          r_means[c], rho[c], W, tw, planes, grow, near, far):
             continue
         for s0 in range(cell_start[c], cell_start[c + 1], PCH):
-            m = min(PCH, cell_start[c + 1] - s0)
+            m = _chunk_rows(mw, s0, min(PCH, cell_start[c + 1] - s0), rows)
             for k in range(10):
                 f = _IN[k]
                 for jj in range(m):
-                    buf[U64(k * PCH + jj)] = pl[f, U64(s0 + jj)]
+                    buf[U64(k * PCH + jj)] = pl[f, U64(rows[jj])]
             _project_chunk(buf, m, Wf, twf, fx, fy, cx, cy, lims, width, height, nearf, farf,
                            cova)
+            tested += m
             for jj in range(m):
                 j = U64(jj)
                 if buf[j + U64(B_OK * PCH)] == F32(0.0):
                     continue
-                i = U64(s0 + jj)
+                i = U64(rows[jj])
                 r = U64(n)
                 q[r, Q_X] = buf[j + U64(B_PX * PCH)]
                 q[r, Q_Y] = buf[j + U64(B_PY * PCH)]
@@ -220,8 +227,23 @@ def cull_project(c0, c1, centers, r_means, rho, cell_start, pl, view, cam, width
                 box[r, 2] = np.int32(buf[j + U64(B_J1 * PCH)])
                 box[r, 3] = np.int32(buf[j + U64(B_I1 * PCH)])
                 n += 1
-        tested += cell_start[c + 1] - cell_start[c]
     return n, tested
+
+
+@njit(cache=True, inline="always")
+def _chunk_rows(mask, s0, m, rows):
+    """rows[:k] = the rows s0 + j (j < m) that `mask` keeps (every one when mask is ALL_BITS,
+    else those whose bit j is set); returns k."""
+    if mask == ALL_BITS:
+        for j in range(m):
+            rows[j] = s0 + j
+        return m
+    k = 0
+    for j in range(m):
+        if (mask >> U64(j)) & U64(1):
+            rows[k] = s0 + j
+            k += 1
+    return k
 
 
 @njit(cache=True)
@@ -427,15 +449,16 @@ def composite_fast(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
 
 
 @njit(cache=True)
-def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
+def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, cell_mask, view, cam, width, height,
                       shift, near, far, cov_alpha, t_stop, t_fill, bg, q, box, qs, bs, keys, rows, inst,
                       color, out_rgb, out_alpha, out_depth, stats):
-    """Every phase of one camera in this thread (cells c0:c1 of the packed scene pk).
+    """Every phase of one camera in this thread (cells c0:c1 of the packed scene pk, the rows
+    cell_mask keeps: `cull_project`).
     Tiles are 2^shift px. Scratch: q / qs [G, NQ], box / bs [G, 4], keys / rows [2, G], inst [M] (grown when short: the
     returned array), color [H, W, 3]; outputs out_rgb [H, W, 3], out_alpha / out_depth [H, W],
     stats [NS]."""
-    n, _ = cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width,
-                        height, near, far, cov_alpha, q, box)
+    n, _ = cull_project(c0, c1, centers, r_means, rho, cell_start, pk, cell_mask, view, cam,
+                        width, height, near, far, cov_alpha, q, box)
     order = depth_order(q, n, keys[0], keys[1], rows[0], rows[1])
     tile = 1 << shift
     tiles_x = (width + tile - 1) >> shift
@@ -466,7 +489,7 @@ def render_fast_frame(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, 
 
 
 @njit(parallel=True, cache=True)
-def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk, views, cams,
+def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk, cell_mask, views, cams,
                        width, height, shift, near, far, cov_alpha, t_stop, t_fill, bg, q, box, keys, rows,
                        color, out_rgb, out_alpha, out_depth, stats, n_workers):
     """Render cameras i < len(scene_of) (camera i sees packed scene scene_of[i]: cells
@@ -483,7 +506,7 @@ def render_fast_frames(scene_of, cell_lo, centers, r_means, rho, cell_start, pk,
                 break
             s = scene_of[i]
             inst = render_fast_frame(cell_lo[s], cell_lo[s + 1], centers, r_means, rho,
-                                     cell_start, pk, views[i], cams[i], width, height, shift,
+                                     cell_start, pk, cell_mask, views[i], cams[i], width, height, shift,
                                      near, far, cov_alpha, t_stop, t_fill, bg, q[h, 0], box[h, 0], q[h, 1],
                                      box[h, 1], keys[h],
                                      rows[h], inst, color[h], out_rgb[i], out_alpha[i],

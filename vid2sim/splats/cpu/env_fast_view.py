@@ -120,15 +120,15 @@ def composite_view(q, box, offsets, inst, t0, x0, y0, x1, y1, t_stop, t_fill, pi
 
 
 @njit(cache=True)
-def render_view_u8(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width, height,
+def render_view_u8(c0, c1, centers, r_means, rho, cell_start, pk, cell_mask, view, cam, width, height,
                    shift, near, far, cov_alpha, t_stop, t_fill, bg, empty_alpha, q, box, qs, bs,
                    keys, rows, inst, offsets, pix, rdone, color, alpha, depth_acc, rgb_u8, depth):
     """`env_fast_frame.render_fast_frame`'s phases for one camera (cells c0:c1; the composite by
     `composite_view`), finished by `finish_u8`. Scratch: q / qs [G, NQ], box / bs [G, 4], keys / rows [2, G], inst [M]
     (grown when short: the returned array), offsets [T+1], pix [5 NPIX], rdone [32],
     color [H, W, 3], alpha / depth_acc [H, W]; outputs rgb_u8 [H, W, 3], depth [H, W]."""
-    n, _ = cull_project(c0, c1, centers, r_means, rho, cell_start, pk, view, cam, width,
-                        height, near, far, cov_alpha, q, box)
+    n, _ = cull_project(c0, c1, centers, r_means, rho, cell_start, pk, cell_mask, view, cam,
+                        width, height, near, far, cov_alpha, q, box)
     order = depth_order(q, n, keys[0], keys[1], rows[0], rows[1])
     tile = 1 << shift
     tiles_x = (width + tile - 1) >> shift
@@ -171,16 +171,19 @@ class FastView:
         self._depth_acc = np.empty((self.H, self.W), np.float32)
         self._cam = np.empty(4, np.float64)
 
-    def draw(self, world_to_cam: np.ndarray, fx: float, fy: float, cx: float, cy: float
-             ) -> tuple[np.ndarray, np.ndarray]:
-        """(rgb [H, W, 3] uint8, depth [H, W] float32, +inf where empty): new arrays."""
+    def draw(self, world_to_cam: np.ndarray, fx: float, fy: float, cx: float, cy: float,
+             cell_mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(rgb [H, W, 3] uint8, depth [H, W] float32, +inf where empty): new arrays.
+        cell_mask [C] uint64: the rows of each culling cell to draw (`cull_project`; a view
+        set's mask, `env_view_sets.ViewSets.mask`); None: every splat."""
         b = self.batch
+        mask = b.all_cells if cell_mask is None else cell_mask
         view = np.ascontiguousarray(world_to_cam, dtype=np.float64)  # [4, 4]
         self._cam[:] = (fx, fy, cx, cy)
         rgb = np.empty((self.H, self.W, 3), np.uint8)
         depth = np.empty((self.H, self.W), np.float32)
         self._inst = render_view_u8(
-            b.cell_lo[0], b.cell_lo[1], b.centers, b.r_means, b.rho, b.cell_start, b.packed, view,
+            b.cell_lo[0], b.cell_lo[1], b.centers, b.r_means, b.rho, b.cell_start, b.packed, mask, view,
             self._cam, self.W, self.H, self.shift, self.near, self.far, self.cov_alpha,
             self.t_stop, self.t_stop, self.bg, self.empty_alpha, self._q[0], self._box[0],
             self._q[1], self._box[1], self._keys, self._rows, self._inst, self._offsets, self._pix,

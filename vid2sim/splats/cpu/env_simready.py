@@ -64,6 +64,7 @@ class SimReadyConfig:
     keep_mass: float = 0.995
     bake_colour: bool = False
     fit_iterations: int = 0
+    view_keep_mass: float = 0.0  # > 0: also each view's own set (`sim_ready_views`)
     width: int = ENV_WIDTH
     height: int = ENV_HEIGHT
 
@@ -93,11 +94,14 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
     return significance_colour(scene, cameras, settings)[0]
 
 
-def significance_colour(scene: StaticScene, cameras: Sequence[Camera],
-                        settings: RasterSettings) -> tuple[np.ndarray, np.ndarray]:
+def significance_colour(scene: StaticScene, cameras: Sequence[Camera], settings: RasterSettings,
+                        view_keep_mass: float = 0.0
+                        ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
     """(significance [N] as `significance`, blend-weighted mean colour [N, 3] of each splat
     over the cameras (its SH colour seen from each camera, weighted by its blend weight
-    there; the DC colour where it never blends)), both float64 in model order."""
+    there; the DC colour where it never blends)), both float64 in model order, and, when
+    view_keep_mass > 0, per camera the model indices of the splats that carry that fraction
+    of the camera's own blend weight (`keep_by_mass`; else an empty list)."""
     if scene.lod is not None:
         raise ValueError("significance: needs an exact (non-LOD) StaticScene")
     W, H = settings.width, settings.height
@@ -113,6 +117,7 @@ def significance_colour(scene: StaticScene, cameras: Sequence[Camera],
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
     deg = min(settings.active_sh_degree, scene.sh_degree)
     bg = np.zeros(3, np.float32)
+    view_sets: list[np.ndarray] = []
     for cam in cameras:
         view, campos, k = camera_arrays(cam)
         contrib[:] = 0.0
@@ -126,6 +131,9 @@ def significance_colour(scene: StaticScene, cameras: Sequence[Camera],
         rows = sel[hit]  # distinct within one camera
         sig[rows] += contrib[hit]
         col[rows] += contrib[hit, None] * fo[hit, F_R:F_BL + 1]
+        if view_keep_mass > 0.0:
+            mine = rows[keep_by_mass(contrib[hit], view_keep_mass)]
+            view_sets.append(np.sort(scene.index[mine[mine < len(scene.index)]]))
     K = len(scene.index)
     seen = sig[:K] > 0.0
     mean_col = scene.rgb[:K].astype(np.float64).copy()
@@ -133,7 +141,7 @@ def significance_colour(scene: StaticScene, cameras: Sequence[Camera],
     out, out_col = np.zeros(scene.num, np.float64), np.zeros((scene.num, 3), np.float64)
     out[scene.index] = sig[:K]
     out_col[scene.index] = mean_col
-    return out, out_col
+    return out, out_col, view_sets
 
 
 def bake_colour(model: GaussianModel, rgb: np.ndarray) -> GaussianModel:
@@ -163,10 +171,23 @@ def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
     """The splats of `model` that carry keep_mass of the image over `cameras` (robot views
     at the env resolution; colours baked when config.bake_colour), and the significance [N]
     they were chosen by."""
+    small, sig, _ = sim_ready_views(model, cameras, config, settings)
+    return small, sig
+
+
+def sim_ready_views(model: GaussianModel, cameras: Sequence[Camera],
+                    config: SimReadyConfig = SimReadyConfig(), settings: RasterSettings | None = None
+                    ) -> tuple[GaussianModel, np.ndarray, list[np.ndarray]]:
+    """`sim_ready`'s (splats, significance), and per camera the indices into those splats of
+    the ones that carry config.view_keep_mass of that camera's blend weight (measured on the
+    full model, in the same pass; an empty list when view_keep_mass is 0): the view sets of
+    `env_view_sets.ViewSets`."""
     deg = model.sh_degree if config.bake_colour else 0
     st = settings or RasterSettings(config.width, config.height, active_sh_degree=deg)
-    sig, col = significance_colour(StaticScene(model), cameras, st)
+    sig, col, full_sets = significance_colour(StaticScene(model), cameras, st, config.view_keep_mass)
     keep = keep_by_mass(sig, config.keep_mass)
+    small_index = np.cumsum(keep) - 1  # [N] index in the kept splats (valid where keep)
+    view_sets = [small_index[idx[keep[idx]]] for idx in full_sets]
     small = (bake_colour(model, col) if config.bake_colour else model).index(torch.from_numpy(keep))
     if config.fit_iterations > 0:
         full = RasterSettings(config.width, config.height, active_sh_degree=model.sh_degree)
@@ -174,4 +195,4 @@ def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
         fit_st = RasterSettings(config.width, config.height, active_sh_degree=small.sh_degree)
         small = fit_to_views(small, cameras, targets, fit_st,
                              FitConfig(iterations=config.fit_iterations))
-    return small, sig
+    return small, sig, view_sets
