@@ -20,7 +20,8 @@ Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--scenes demo gopro] [--registry ROOT --scene ID] [--factory ROOT ID ...] [--skip-gt]
        [--no-speed] [--no-expert] [--fast default 0.85:600 0.95] [--no-exact] [--quick]
 --fast: `default` is the env's default fast path (FastRenderConfig()); KEEP[:FIT] changes
-keep_mass (and fit iterations) from it.
+keep_mass (and fit iterations) from it; a `+views[=MASS]` suffix turns view sets on
+(`FastRenderConfig.view_keep_mass`, default 0.98), e.g. `default+views 0.95+views=0.99`.
 --quick: one 75k GT bundle, 3 expert episodes, 60 speed steps, the default fast path (smoke run).
 """
 
@@ -150,12 +151,19 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: 
 
 
 def fast_config(spec: str) -> tuple[FastRenderConfig, str]:
-    """The fast path setting a --fast entry names, and its label."""
+    """The fast path setting a --fast entry names (`default` or KEEP[:FIT], then optionally
+    `+views[=MASS]`), and its label."""
+    spec, plus, views = spec.partition("+views")
     if spec == "default":
-        return FastRenderConfig(), "fast (default)"
-    keep, _, fit = spec.partition(":")
-    label = f"fast k={keep}" + (f" fit {fit}" if fit else "")
-    return replace(FastRenderConfig(), keep_mass=float(keep), fit_iterations=int(fit or 0)), label
+        conf, label = FastRenderConfig(), "fast (default)"
+    else:
+        keep, _, fit = spec.partition(":")
+        label = f"fast k={keep}" + (f" fit {fit}" if fit else "")
+        conf = replace(FastRenderConfig(), keep_mass=float(keep), fit_iterations=int(fit or 0))
+    if not plus:
+        return conf, label
+    mass = float(views.removeprefix("=")) if views else 0.98
+    return replace(conf, view_keep_mass=mass), f"{label} + view sets {mass:g}"
 
 
 def main() -> None:
@@ -174,7 +182,7 @@ def main() -> None:
     ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
     ap.add_argument("--scenes", nargs="*", default=[], metavar="NAME",
                     help="factory scenes built by benchmarks/env_scenes.py (demo, gopro)")
-    ap.add_argument("--fast", nargs="+", default=["default"], metavar="default|KEEP[:FIT]",
+    ap.add_argument("--fast", nargs="+", default=["default"], metavar="default|KEEP[:FIT][+views[=MASS]]",
                     help="fast path settings to measure: 'default' (the env's default), or a "
                          "sim-ready keep_mass, optionally with fit iterations (e.g. 0.9:600)")
     ap.add_argument("--max-steps", type=int, default=600,
