@@ -74,14 +74,14 @@ def test_each_views_own_set_is_measured_in_the_same_pass(model):
     small, sig, sets = sim_ready_views(model, cams, conf, RasterSettings(W, H))
     small_ref, sig_ref = sim_ready(model, cams, conf, RasterSettings(W, H))
     assert small.num == small_ref.num and np.array_equal(sig, sig_ref)
-    assert len(sets) == len(cams)
-    for idx in sets:
-        assert len(idx) > 0 and idx.max() < small.num and np.all(np.diff(idx) > 0)
+    assert sets.shape == (len(cams), (small.num + 7) // 8)
+    own = np.unpackbits(sets, axis=1, count=small.num).astype(bool)  # [V, K]
+    assert own.any(1).all()
     # a view's set is a fraction of the splats: less than every splat any view needs
-    assert max(len(s) for s in sets) < len(np.unique(np.concatenate(sets)))
+    assert own.sum(1).max() < own.any(0).sum()
     none = sim_ready_views(model, cams, SimReadyConfig(keep_mass=0.99, width=W, height=H),
                            RasterSettings(W, H))[2]
-    assert none == []
+    assert len(none) == 0
 
 
 def test_cell_masks_keep_exactly_the_sets_and_unite_the_near_views(model, scene, tmp_path):
@@ -90,7 +90,10 @@ def test_cell_masks_keep_exactly_the_sets_and_unite_the_near_views(model, scene,
     cams = [robot_camera(W, H, x=float(x), yaw_deg=float(a))
             for x, a in zip(rng.uniform(-5, 5, 12), rng.uniform(-20, 20, 12))]
     sets = [np.sort(rng.choice(N, 500, replace=False)) for _ in cams]
-    views = ViewSets.from_cameras(cams, sets, N)
+    member = np.zeros((len(cams), N), bool)
+    for v, idx in enumerate(sets):
+        member[v, idx] = True
+    views = ViewSets.from_cameras(cams, np.packbits(member, axis=1), N)
     back = ViewSets.load(views.save(tmp_path / "views.npz"))
     assert back.num == N and np.array_equal(back.sets, views.sets)
     assert np.array_equal(back.centres, views.centres) and np.array_equal(back.forwards, views.forwards)
@@ -114,4 +117,7 @@ def test_cell_masks_keep_exactly_the_sets_and_unite_the_near_views(model, scene,
     with pytest.raises(ValueError, match="culling cells of up to 64"):
         CellMasks(back, StaticScene(model, StaticSceneConfig(cell_size=128)), 1.0, 30.0)
     with pytest.raises(ValueError, match="measured on"):
-        CellMasks(ViewSets.from_cameras(cams[:1], [np.arange(3)], N - 1), scene, 1.0, 30.0)
+        CellMasks(ViewSets.from_cameras(cams[:1], np.packbits(member[:1, :N - 1], axis=1), N - 1),
+                  scene, 1.0, 30.0)
+    with pytest.raises(ValueError, match="sets of shape"):
+        ViewSets.from_cameras(cams, np.packbits(member, axis=1)[:3], N)

@@ -96,12 +96,13 @@ def significance(scene: StaticScene, cameras: Sequence[Camera],
 
 def significance_colour(scene: StaticScene, cameras: Sequence[Camera], settings: RasterSettings,
                         view_keep_mass: float = 0.0
-                        ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(significance [N] as `significance`, blend-weighted mean colour [N, 3] of each splat
     over the cameras (its SH colour seen from each camera, weighted by its blend weight
     there; the DC colour where it never blends)), both float64 in model order, and, when
-    view_keep_mass > 0, per camera the model indices of the splats that carry that fraction
-    of the camera's own blend weight (`keep_by_mass`; else an empty list)."""
+    view_keep_mass > 0, per camera the splats that carry that fraction of the camera's own
+    blend weight (`keep_by_mass`): [V, ceil(N / 8)] uint8, np.packbits of a bool [V, N] in
+    model order ([0, ceil(N / 8)] when view_keep_mass is 0)."""
     if scene.lod is not None:
         raise ValueError("significance: needs an exact (non-LOD) StaticScene")
     W, H = settings.width, settings.height
@@ -117,8 +118,10 @@ def significance_colour(scene: StaticScene, cameras: Sequence[Camera], settings:
     cov_alpha = -1.0 if settings.cov_cull_alpha is None else float(settings.cov_cull_alpha)
     deg = min(settings.active_sh_degree, scene.sh_degree)
     bg = np.zeros(3, np.float32)
-    view_sets: list[np.ndarray] = []
-    for cam in cameras:
+    view_sets = np.zeros((len(cameras) if view_keep_mass > 0.0 else 0, (scene.num + 7) // 8),
+                         np.uint8)  # [V, ceil(N / 8)] packed bits, model order
+    mine = np.zeros(scene.num, bool)
+    for v, cam in enumerate(cameras):
         view, campos, k = camera_arrays(cam)
         contrib[:] = 0.0
         n = render_frame(0, len(scene.centers), scene.centers, scene.r_means, scene.rho,
@@ -132,8 +135,10 @@ def significance_colour(scene: StaticScene, cameras: Sequence[Camera], settings:
         sig[rows] += contrib[hit]
         col[rows] += contrib[hit, None] * fo[hit, F_R:F_BL + 1]
         if view_keep_mass > 0.0:
-            mine = rows[keep_by_mass(contrib[hit], view_keep_mass)]
-            view_sets.append(np.sort(scene.index[mine[mine < len(scene.index)]]))
+            own = rows[keep_by_mass(contrib[hit], view_keep_mass)]
+            mine[:] = False
+            mine[scene.index[own[own < len(scene.index)]]] = True
+            view_sets[v] = np.packbits(mine)
     K = len(scene.index)
     seen = sig[:K] > 0.0
     mean_col = scene.rgb[:K].astype(np.float64).copy()
@@ -177,17 +182,18 @@ def sim_ready(model: GaussianModel, cameras: Sequence[Camera],
 
 def sim_ready_views(model: GaussianModel, cameras: Sequence[Camera],
                     config: SimReadyConfig = SimReadyConfig(), settings: RasterSettings | None = None
-                    ) -> tuple[GaussianModel, np.ndarray, list[np.ndarray]]:
-    """`sim_ready`'s (splats, significance), and per camera the indices into those splats of
-    the ones that carry config.view_keep_mass of that camera's blend weight (measured on the
-    full model, in the same pass; an empty list when view_keep_mass is 0): the view sets of
-    `env_view_sets.ViewSets`."""
+                    ) -> tuple[GaussianModel, np.ndarray, np.ndarray]:
+    """`sim_ready`'s (splats, significance), and per camera which of those splats carry
+    config.view_keep_mass of that camera's blend weight (measured on the full model in the
+    same pass): [V, ceil(K / 8)] uint8 packed bits over the K kept splats ([0, ...] when
+    view_keep_mass is 0), the view sets of `env_view_sets.ViewSets`."""
     deg = model.sh_degree if config.bake_colour else 0
     st = settings or RasterSettings(config.width, config.height, active_sh_degree=deg)
     sig, col, full_sets = significance_colour(StaticScene(model), cameras, st, config.view_keep_mass)
     keep = keep_by_mass(sig, config.keep_mass)
-    small_index = np.cumsum(keep) - 1  # [N] index in the kept splats (valid where keep)
-    view_sets = [small_index[idx[keep[idx]]] for idx in full_sets]
+    view_sets = np.zeros((len(full_sets), (int(keep.sum()) + 7) // 8), np.uint8)
+    for v, bits in enumerate(full_sets):  # model order -> kept-splat order, one view at a time
+        view_sets[v] = np.packbits(np.unpackbits(bits, count=len(keep)).astype(bool)[keep])
     small = (bake_colour(model, col) if config.bake_colour else model).index(torch.from_numpy(keep))
     if config.fit_iterations > 0:
         full = RasterSettings(config.width, config.height, active_sh_degree=model.sh_degree)

@@ -43,18 +43,17 @@ class ViewSets:
     num: int  # N, splats of the model the sets index
 
     @classmethod
-    def from_cameras(cls, cameras: Sequence[Camera], sets: Sequence[np.ndarray], num: int
-                     ) -> "ViewSets":
-        """From the measurement cameras and, per camera, the model indices it needs."""
-        if len(cameras) != len(sets):
-            raise ValueError(f"ViewSets: {len(cameras)} cameras but {len(sets)} sets")
-        keep = np.zeros((len(sets), num), bool)
-        for v, idx in enumerate(sets):
-            keep[v, np.asarray(idx, np.int64)] = True
+    def from_cameras(cls, cameras: Sequence[Camera], sets: np.ndarray, num: int) -> "ViewSets":
+        """From the measurement cameras and, per camera, the splats it needs (sets
+        [V, ceil(num / 8)] uint8 packed bits, as `env_simready.sim_ready_views` gives them)."""
+        sets = np.asarray(sets, np.uint8)
+        if sets.shape != (len(cameras), (num + 7) // 8):
+            raise ValueError(f"ViewSets: sets of shape {sets.shape} for {len(cameras)} cameras "
+                             f"and {num} splats")
         poses = [camera_pose(np.asarray(c.world_to_cam, np.float64)) for c in cameras]
         centres = np.array([p[0] for p in poses]).reshape(-1, 3)
         forwards = np.array([p[1] for p in poses]).reshape(-1, 3)
-        return cls(centres, forwards, np.packbits(keep, axis=1), num)
+        return cls(centres, forwards, sets, num)
 
     def save(self, path: Path) -> Path:
         path = Path(path)
@@ -90,10 +89,9 @@ class CellMasks:
                              f"the scene has {int(np.diff(starts).max())}")
         row_of = np.full(scene.num, -1, np.int64)  # model index -> cached row (-1: not loaded)
         row_of[scene.index] = np.arange(len(scene.index))
-        keep = np.unpackbits(views.sets, axis=1, count=views.num).astype(bool)  # [V, N]
-        self.masks = np.zeros((len(keep), max(len(starts) - 1, 0)), np.uint64)  # [V, C]
-        for v in range(len(keep)):
-            rows = row_of[np.nonzero(keep[v])[0]]
+        self.masks = np.zeros((len(views.sets), max(len(starts) - 1, 0)), np.uint64)  # [V, C]
+        for v, bits in enumerate(views.sets):  # one view at a time: [V, N] bools may not fit
+            rows = row_of[np.nonzero(np.unpackbits(bits, count=views.num))[0]]
             rows = rows[rows >= 0]
             cell = np.searchsorted(starts, rows, side="right") - 1
             bits = np.left_shift(np.uint64(1), (rows - starts[cell]).astype(np.uint64))
