@@ -15,6 +15,8 @@ from typing import Optional
 import torch
 import torch.nn.functional as F
 
+from vid2sim.factory.recon.ncc_fused import ncc_applies, ncc_depth_loss_fused
+from vid2sim.factory.recon.normals_fused import geo_loss_fused, normal_loss_fused, normals_apply
 from vid2sim.factory.recon.ssim_fused import fused_applies, gaussian_window_1d, ssim_map_fused
 
 
@@ -83,7 +85,7 @@ def rgb_loss(pred: torch.Tensor, gt: torch.Tensor, mask: Optional[torch.Tensor] 
 
 def ncc_depth_loss(rendered: torch.Tensor, prior: torch.Tensor, valid: Optional[torch.Tensor] = None,
                    patch: int = 8, stride: int = 4, min_valid: float = 0.8,
-                   eps: float = 1e-6) -> torch.Tensor:
+                   eps: float = 1e-6, fused: bool = True) -> torch.Tensor:
     """Patch NCC loss  1 - 1/|P| sum_p 1/K^2 sum_k D^'_pk D'_pk / (sigma^_p sigma_p).
 
     rendered, prior [H, W]; valid [H, W] (bool/0-1; None = all valid).
@@ -91,11 +93,14 @@ def ncc_depth_loss(rendered: torch.Tensor, prior: torch.Tensor, valid: Optional[
     pixels, so each patch score is its Pearson correlation in [-1, 1]. (The paper's sum over
     k must carry this 1/K^2 for the loss to stay in [0, 2].) Patches with fewer than
     `min_valid` valid pixels, or with a flat prior, are left out. Returns a scalar in [0, 2]
-    (0 when no patch qualifies).
+    (0 when no patch qualifies). CPU maps go through ncc_fused.py (the same loss in one pass, a
+    hand-written backward) unless `fused` is False: this torch code is its reference.
     """
     h, w = rendered.shape
     if valid is None:
         valid = torch.ones_like(rendered, dtype=torch.bool)
+    if fused and ncc_applies(rendered, prior):
+        return ncc_depth_loss_fused(rendered, prior, valid, patch, stride, min_valid, eps)
 
     def unfold(t: torch.Tensor) -> torch.Tensor:  # [K^2, P]
         return F.unfold(t.reshape(1, 1, h, w).to(rendered.dtype), patch, stride=stride)[0]
@@ -174,11 +179,14 @@ def normals_from_depth_pca(depth: torch.Tensor, K: torch.Tensor, window: int = 5
 
 
 def normal_loss(rendered: torch.Tensor, prior: torch.Tensor,
-                valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+                valid: Optional[torch.Tensor] = None, fused: bool = True) -> torch.Tensor:
     """1 - mean cosine(rendered, prior) over valid pixels.
 
-    rendered, prior [H, W, 3] (camera frame, any length); valid [H, W].
+    rendered, prior [H, W, 3] (camera frame, any length); valid [H, W]. CPU maps go through
+    normals_fused.py unless `fused` is False: this torch code is its reference.
     """
+    if fused and valid is not None and prior.shape == rendered.shape and normals_apply(rendered, prior):
+        return normal_loss_fused(rendered, prior, valid)
     cos = F.cosine_similarity(rendered, prior, dim=-1, eps=1e-8)  # [H, W]
     return 1.0 - _masked_mean(cos, valid)
 
@@ -194,13 +202,16 @@ def depth_edge_weights(depth: torch.Tensor) -> torch.Tensor:
 
 
 def geo_consistency_loss(normals: torch.Tensor, depth: torch.Tensor,
-                         valid: Optional[torch.Tensor] = None) -> torch.Tensor:
+                         valid: Optional[torch.Tensor] = None, fused: bool = True) -> torch.Tensor:
     """Geometry-consistency loss: sum w (1 - N_ij . N_nb) / sum w over right and bottom nb.
 
     normals [H, W, 3] (rendered, unit), depth [H, W] the map the weights come from (the trainer
     passes log prior depth, so |grad D| is the relative depth change and scale-free),
-    valid [H, W]. Each pixel's term is the mean over its right and bottom neighbours.
+    valid [H, W]. Each pixel's term is the mean over its right and bottom neighbours. CPU maps
+    go through normals_fused.py unless `fused` is False: this torch code is its reference.
     """
+    if fused and valid is not None and depth.dim() == 2 and normals_apply(normals, depth):
+        return geo_loss_fused(normals, depth, valid)
     n = normals[:-1, :-1]
     dots = 0.5 * ((n * normals[:-1, 1:]).sum(-1) + (n * normals[1:, :-1]).sum(-1))  # [H-1, W-1]
     w = depth_edge_weights(depth.detach())
