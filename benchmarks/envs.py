@@ -21,7 +21,8 @@ Usage: .venv/bin/python benchmarks/envs.py [--episodes 20] [--steps 200]
        [--no-speed] [--no-expert] [--fast default 0.85:600 0.95] [--no-exact] [--quick]
 --fast: `default` is the env's default fast path (FastRenderConfig()); KEEP[:FIT] changes
 keep_mass (and fit iterations) from it; a `+views[=MASS]` suffix turns view sets on
-(`FastRenderConfig.view_keep_mass`, default 0.98), e.g. `default+views 0.95+views=0.99`.
+(`FastRenderConfig.view_keep_mass`, default 0.98; `=MASS:RADIUS:HEADING:PER_M2` sets
+view_radius, view_heading_deg and views_per_m2 too), e.g. `default+views 0.95+views=0.99:1.5:40:10`.
 --quick: one 75k GT bundle, 3 expert episodes, 60 speed steps, the default fast path (smoke run).
 """
 
@@ -152,7 +153,7 @@ def speed(root: str, scene: str, task: str, variant: str, steps: int, fidelity: 
 
 def fast_config(spec: str) -> tuple[FastRenderConfig, str]:
     """The fast path setting a --fast entry names (`default` or KEEP[:FIT], then optionally
-    `+views[=MASS]`), and its label."""
+    `+views[=MASS[:RADIUS[:HEADING[:PER_M2]]]]`), and its label."""
     spec, plus, views = spec.partition("+views")
     if spec == "default":
         conf, label = FastRenderConfig(), "fast (default)"
@@ -162,8 +163,10 @@ def fast_config(spec: str) -> tuple[FastRenderConfig, str]:
         conf = replace(FastRenderConfig(), keep_mass=float(keep), fit_iterations=int(fit or 0))
     if not plus:
         return conf, label
-    mass = float(views.removeprefix("=")) if views else 0.98
-    return replace(conf, view_keep_mass=mass), f"{label} + view sets {mass:g}"
+    fields = [float(v) for v in views.removeprefix("=").split(":")] if views else [0.98]
+    names = ("view_keep_mass", "view_radius", "view_heading_deg", "views_per_m2")
+    conf = replace(conf, **dict(zip(names, fields)))
+    return conf, f"{label} + view sets " + ":".join(f"{v:g}" for v in fields)
 
 
 def main() -> None:
@@ -182,7 +185,7 @@ def main() -> None:
     ap.add_argument("--no-exact", action="store_true", help="speed: only the fast render path")
     ap.add_argument("--scenes", nargs="*", default=[], metavar="NAME",
                     help="factory scenes built by benchmarks/env_scenes.py (demo, gopro)")
-    ap.add_argument("--fast", nargs="+", default=["default"], metavar="default|KEEP[:FIT][+views[=MASS]]",
+    ap.add_argument("--fast", nargs="+", default=["default"], metavar="default|KEEP[:FIT][+views[=MASS:...]]",
                     help="fast path settings to measure: 'default' (the env's default), or a "
                          "sim-ready keep_mass, optionally with fit iterations (e.g. 0.9:600)")
     ap.add_argument("--max-steps", type=int, default=600,

@@ -156,8 +156,10 @@ class FastRenderConfig:
     # sim-ready splats) without 35.4 / 34.6 dB, 2.24 ms; view sets of 0.98 within 1.0 m / 30 deg
     # 34.9 / 34.1, 1.65-1.73 (a frame draws ~18k of the ~27k splats in its frustum); 0.99 within
     # 1.25 m / 35 deg 35.2 / 34.3, 1.74-2.05; 0.95 33.9 / 33.4, 1.43-1.52. A 20k-splat ground-truth
-    # street: without 34.0 / 28.3 dB, 0.63 ms; with 0.98 32.4 / 28.0, 0.94 ms, and ~25 s more to
-    # measure its 11.5k views (288 m^2 of map)
+    # street: without 33.7 / 27.8 dB, 0.58 ms; with 0.98 32.4 / 28.0, 0.54 ms, and ~25 s more to
+    # measure its 11.5k views (288 m^2 of map). A gentler set, 0.99 within 1.5 m / 40 deg from
+    # 10 views per m^2: GoPro 35.2 / 34.3 dB, 1.76 ms; demo 38.7 / 35.6 dB (-0.05), 1.8 vs 2.0 ms;
+    # the street 33.1 / 28.3 dB, 0.50 ms, 2.9k views
     view_keep_mass: float = 0.0  # each measured view's own set carries this of its weight (0: off)
     view_radius: float = 1.0  # m, a frame unites the sets of the measured views this close ...
     view_heading_deg: float = 30.0  # deg, ... looking within this angle of its own direction
