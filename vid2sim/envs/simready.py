@@ -9,9 +9,10 @@ same bundle with the same settings share one set (`_CACHE`), and the set is writ
 (named by a hash of the bundle's splats and the settings) to `$VID2SIM_SIMREADY_CACHE`, else to
 `simready/` beside the env's bundle checkouts, and read back by later processes: measuring the
 default 1024 views costs about 15 s of one core per scene (a colour fit, when asked for, about
-a minute per 600 steps), paid once. The same pass records each view's own set (view sets,
-`splats/cpu/env_view_sets.py`), written beside the PLY as `simready-<key>.views.npz`; a frame
-then draws only what the measured views near its camera needed.
+a minute per 600 steps), paid once. With view sets (`FastRenderConfig.view_keep_mass` > 0,
+`splats/cpu/env_view_sets.py`) the same pass records each view's own set, written beside the PLY
+as `simready-<key>.views.npz`, and a frame draws only what the measured views near its camera
+needed.
 """
 
 from __future__ import annotations
