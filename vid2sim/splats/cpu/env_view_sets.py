@@ -101,25 +101,23 @@ class CellMasks:
         self.cos_heading = math.cos(math.radians(heading_deg))
 
     def near(self, world_to_cam: np.ndarray) -> np.ndarray:
-        """Indices of the measured views near a camera (world-to-camera [4, 4])."""
+        """Indices of the measured views near a camera (world-to-camera [4, 4]): centre within
+        `radius` m, optical axis within `heading_deg`."""
         c, f = camera_pose(np.asarray(world_to_cam, np.float64))
-        d2 = ((self.centres - c) ** 2).sum(1)
-        return np.nonzero((d2 <= self.radius2) & (self.forwards @ f >= self.cos_heading))[0]
+        return near_views(self.centres, self.forwards, c, f, self.radius2, self.cos_heading)
 
     def mask(self, world_to_cam: np.ndarray) -> Optional[np.ndarray]:
-        """The cell mask [C] uint64 a frame at this camera draws: the union of the near views'
-        sets (the views of `near`); None (draw every splat) when fewer than MIN_VIEWS are near."""
-        c, f = camera_pose(np.asarray(world_to_cam, np.float64))
-        out = np.zeros(self.masks.shape[1], np.uint64)
-        n = unite_near(self.centres, self.forwards, c, f, self.radius2, self.cos_heading,
-                       self.masks, out)
-        return out if n >= MIN_VIEWS else None
+        """The cell mask [C] uint64 a frame at this camera draws: the union of the `near` views'
+        sets; None (draw every splat) when fewer than MIN_VIEWS are near."""
+        near = self.near(world_to_cam)
+        return unite(self.masks, near) if len(near) >= MIN_VIEWS else None
 
 
 @njit(cache=True)
-def unite_near(centres, forwards, c, f, radius2, cos_heading, masks, out):
-    """out [C] |= masks[v] for every view v whose centre is within sqrt(radius2) of c [3] and
-    whose axis has a cosine >= cos_heading with f [3] (`CellMasks.near`); returns their count."""
+def near_views(centres, forwards, c, f, radius2, cos_heading):
+    """Indices of the views whose centre [V, 3] is within sqrt(radius2) of c [3] and whose axis
+    [V, 3] has a cosine >= cos_heading with f [3]."""
+    out = np.empty(centres.shape[0], np.int64)
     n = 0
     for v in range(centres.shape[0]):
         dx, dy, dz = centres[v, 0] - c[0], centres[v, 1] - c[1], centres[v, 2] - c[2]
@@ -127,7 +125,16 @@ def unite_near(centres, forwards, c, f, radius2, cos_heading, masks, out):
             continue
         if forwards[v, 0] * f[0] + forwards[v, 1] * f[1] + forwards[v, 2] * f[2] < cos_heading:
             continue
+        out[n] = v
         n += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def unite(masks, views):
+    """The bitwise union [C] of the rows `views` of masks [V, C]."""
+    out = np.zeros(masks.shape[1], np.uint64)
+    for v in views:
         for k in range(out.shape[0]):
             out[k] |= masks[v, k]
-    return n
+    return out
