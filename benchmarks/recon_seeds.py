@@ -8,13 +8,16 @@ the mean and spread. POSED is a factory work folder's `metric` stage (the PosedC
 stage reads), e.g. `vid2sim-work/clips/<clip>/metric`.
 
     .venv/bin/python benchmarks/recon_seeds.py POSED [--seeds 0 1 2] [--preset fast] [--threads 2]
-        [--label NAME]
+        [--set FIELD=VALUE ...] [--label NAME]
+
+`--set` replaces top-level `ReconConfig` fields of the preset (a schedule variant, e.g.
+`--set coarse_iterations=1000 --set coarse_scale=0.5`); values are read as JSON, else as text.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
+import json
 import statistics
 import tempfile
 from pathlib import Path
@@ -33,21 +36,47 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
+                    help="replace a top-level ReconConfig field of the preset (repeatable)")
     ap.add_argument("--label", default=None, help="case name (default: the PosedClip folder)")
     add_run_args(ap)
     a = ap.parse_args()
     if not (a.posed / "cameras.parquet").is_file():
         raise SystemExit(f"{a.posed}: not a PosedClip folder (cameras.parquet missing)")
+    a.overrides = parse_overrides(a.overrides)
+    config(a, 0)  # unknown fields or presets fail before any work
     set_thread_pools(a.threads)
     with Run("recon_seeds", a) as run:
         measure(run, a)
+
+
+def parse_overrides(items: list[str]) -> dict:
+    """`FIELD=VALUE` strings -> {field: value}, values read as JSON where they parse."""
+    out = {}
+    for item in items:
+        field, sep, text = item.partition("=")
+        if not sep or not field:
+            raise SystemExit(f"--set {item!r}: expected FIELD=VALUE")
+        try:
+            out[field] = json.loads(text)
+        except json.JSONDecodeError:
+            out[field] = text
+    return out
+
+
+def config(a: argparse.Namespace, seed: int):
+    """The preset with the `--set` fields and the seed."""
+    try:
+        return preset(a.preset, **a.overrides, seed=seed)
+    except (TypeError, ValueError) as e:
+        raise SystemExit(f"--preset {a.preset} --set {a.overrides}: {e}") from None
 
 
 def measure(run: Run, a: argparse.Namespace) -> None:
     label = a.label or str(a.posed)
     psnrs = []
     for seed in a.seeds:
-        conf = dataclasses.replace(preset(a.preset), seed=seed)
+        conf = config(a, seed)
         with tempfile.TemporaryDirectory(prefix="recon-seed-") as out:
             summary = trainer.build(conf, a.posed, Path(out), f"seed-{seed}")
         values = {k: summary[k] for k in METRICS}
@@ -59,7 +88,7 @@ def measure(run: Run, a: argparse.Namespace) -> None:
     mean = statistics.fmean(psnrs)
     spread = max(psnrs) - min(psnrs)
     run.record_all(f"{label}, {len(psnrs)} seeds", {"psnr_mean": mean, "psnr_spread": spread}, "dB",
-                   {"preset": a.preset, "threads": a.threads, "seeds": list(a.seeds)})
+                   {"preset": a.preset, "threads": a.threads, "seeds": list(a.seeds), "set": a.overrides})
     print(f"{len(psnrs)} seeds: PSNR mean {mean:.2f} dB, spread {spread:.2f} dB")
 
 
