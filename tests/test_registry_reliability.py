@@ -298,6 +298,27 @@ def test_checkout_over_another_registrys_scene_names_both(tmp_path):
     assert {p.name: p.read_bytes() for p in dest.iterdir()} == before  # nothing overwritten
 
 
+def test_a_checkout_of_a_registry_made_anew_at_the_same_place_is_replaced(tmp_path):
+    import shutil
+
+    from vid2sim.registry.blobs import sha256_file
+    from vid2sim.registry.store import CHECKOUT_MARKER
+
+    root = tmp_path / "reg"
+    Registry(root).add(make_bundle(tmp_path / "b0", "s1", seed=0))
+    dest = Registry(root).checkout("s1", dest=tmp_path / "co")
+    (dest / "simready-old.ply").write_bytes(b"a cache of the old content")
+    shutil.rmtree(root)  # the registry deleted and ingested again: s1@1 is other content now
+    reg = Registry(root)
+    reg.add(make_bundle(tmp_path / "b1", "s1", seed=1))
+    rec = reg.show("s1")
+    assert reg.checkout("s1", dest=dest) == dest
+    assert {a.name: sha256_file(dest / a.name)[0] for a in rec.artifacts} == {a.name: a.sha256 for a in rec.artifacts}
+    assert json.loads((dest / CHECKOUT_MARKER).read_text())["content_hash"] == rec.content_hash
+    assert not (dest / "simready-old.ply").exists()  # the stale folder went whole
+    assert not [p for p in tmp_path.iterdir() if ".stale-" in p.name or ".tmp-" in p.name]
+
+
 def test_a_folder_that_is_not_a_registry_is_a_named_error(tmp_path):
     from vid2sim.registry import RegistryNotFound
 

@@ -128,6 +128,24 @@ def _checkout_owner(done: Optional[dict], rec: SceneRecord, root: str) -> str:
             " check it out under another folder)")
 
 
+def _stale_checkout(done: Optional[dict], rec: SceneRecord, root: str) -> bool:
+    """Whether a checkout folder holds what this registry root once checked out as the same
+    scene version with other content: a version's content never changes within a registry, so
+    the registry at that place was made anew (e.g. deleted and ingested again)."""
+    return bool(done) and done.get("registry") == root and done.get("ref") == rec.ref \
+        and done.get("content_hash") != rec.content_hash
+
+
+def _set_aside(folder: Path) -> None:
+    """Remove a stale checkout folder: renamed out of the way first (one rename, so the new
+    checkout can take its place at once), then deleted."""
+    if not folder.exists():
+        return
+    aside = folder.parent / f".{folder.name}.stale-{uuid.uuid4().hex}"
+    os.replace(folder, aside)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
 def _check_name(name: str) -> str:
     p = Path(name)
     if not name or p.is_absolute() or ".." in p.parts:
@@ -650,7 +668,10 @@ class Registry:
         A finished checkout of the same content is verified before it is handed back: every
         artifact file's size and sha256 against the manifest; a file that is missing or differs
         (edited, truncated, bit rot) is rewritten from its verified blob. Other files in the
-        folder are left alone. dest defaults to ./vid2sim-checkouts/<scene_id>@<version>.
+        folder are left alone. A checkout that this registry root made of the same scene version
+        with other content (the registry was made anew at the same place) is replaced whole; any
+        other folder with something in it is refused. dest defaults to
+        ./vid2sim-checkouts/<scene_id>@<version>.
         """
         rec = self.show(check_scene_id(scene_id), version, as_of=as_of)
         out = Path(dest) if dest is not None else Path("vid2sim-checkouts") / rec.ref
@@ -660,7 +681,8 @@ class Registry:
         if done and done.get("content_hash") == rec.content_hash:
             self.refresh_checkout(rec, out)
             return out
-        if out.exists() and any(out.iterdir()):
+        stale = _stale_checkout(done, rec, self.root)
+        if out.exists() and any(out.iterdir()) and not stale:
             raise RegistryError(f"{out}: checkout destination exists and holds something else"
                                 f"{_checkout_owner(done, rec, self.root)}")
         out.parent.mkdir(parents=True, exist_ok=True)
@@ -678,7 +700,9 @@ class Registry:
             (tmp / CHECKOUT_MARKER).write_text(json.dumps({"ref": rec.ref, "content_hash": rec.content_hash,
                                                            "registry": self.root}))
             try:
-                if out.exists():
+                if stale:
+                    _set_aside(out)
+                elif out.exists():
                     out.rmdir()  # an empty folder the caller made
                 os.replace(tmp, out)
             except OSError:  # `out` filled meanwhile: another process finished the same checkout?
