@@ -177,6 +177,19 @@ def chain_roots_reference(c: np.ndarray, conf: PlateConfig) -> np.ndarray:
     return np.array([root(i) for i in range(len(c))])
 
 
+def test_plate_components_are_the_default_labellings(street: np.ndarray) -> None:
+    """The plate finder's faster labelling gives OpenCV's default components, in the same
+    order, on the enlarged thresholded frames it reads (a street with plates and faces)."""
+    from vid2sim.factory.ingest.plates import component_stats
+
+    c = composite(street, POSES, [110, 140], np.random.default_rng(3))
+    grey = cv2.resize(cv2.cvtColor(c.image, cv2.COLOR_BGR2GRAY), None, fx=3, fy=3, interpolation=cv2.INTER_LINEAR)
+    for mode, delta in ((cv2.THRESH_BINARY_INV, 12), (cv2.THRESH_BINARY, -12)):
+        binary = cv2.adaptiveThreshold(grey, 255, cv2.ADAPTIVE_THRESH_MEAN_C, mode, 15, delta)
+        want = cv2.connectedComponentsWithStats(binary, connectivity=8)[2]
+        assert len(want) > 100 and np.array_equal(component_stats(binary), want)
+
+
 def test_plate_character_chains_equal_the_plain_reference() -> None:
     """The compiled chaining of character boxes gives the reference's roots, on rows of text and clutter."""
     from vid2sim.factory.ingest.plates import _chain_roots
