@@ -250,6 +250,13 @@ def _init_worker(face_conf: FaceConfig, plate_conf: PlateConfig, quality: int) -
     _WORKER["blur"], _WORKER["quality"] = Anonymiser(face_conf, plate_conf), quality
 
 
+def _init_pool_worker(face_conf: FaceConfig, plate_conf: PlateConfig, quality: int) -> None:
+    """A pool process: one OpenCV thread (the pool's processes are the parallelism), then the
+    anonymiser."""
+    cv2.setNumThreads(1)
+    _init_worker(face_conf, plate_conf, quality)
+
+
 def _blur_and_write(job: tuple[np.ndarray, str, bytes]) -> tuple[int, int]:
     """Worker: blur faces and plates in memory, then write the JPEG with the lens EXIF segment
     (b"": none); returns (faces, plates)."""
@@ -277,7 +284,7 @@ def _write(samples: list[Sample], conf: DecodeConfig, out_dir: Path) -> dict[int
     else:
         ctx = multiprocessing.get_context("spawn")
         init = (conf.faces, conf.plates, conf.jpeg_quality)
-        with ProcessPoolExecutor(conf.workers, ctx, _init_worker, init) as pool:
+        with ProcessPoolExecutor(conf.workers, ctx, _init_pool_worker, init) as pool:
             counts = list(pool.map(_blur_and_write, jobs, chunksize=4))
     return dict(zip(kept, counts))
 
