@@ -24,6 +24,14 @@ ZERO, ONE = F32(0.0), F32(1.0)
 EPS_A, EPS_N = F32(1e-6), F32(1e-12)
 
 
+@njit(cache=True, inline="always")
+def _put3(out, i, j, x, y, z):
+    """out[i, j, :] = (x, y, z)."""
+    out[i, j, 0] = x
+    out[i, j, 1] = y
+    out[i, j, 2] = z
+
+
 @njit(cache=True, error_model="numpy")
 def _forward(C, a, D, N, bg, rgb, depth, normal):
     """C, N [H, W, 3], a, D [H, W], bg [3] -> rgb, normal [H, W, 3], depth [H, W]."""
@@ -40,13 +48,9 @@ def _forward(C, a, D, N, bg, rgb, depth, normal):
             n = np.sqrt(nx * nx + ny * ny + nz * nz)
             if covered and n > ZERO:
                 m = max(n, EPS_N)
-                normal[i, j, 0] = nx / m
-                normal[i, j, 1] = ny / m
-                normal[i, j, 2] = nz / m
+                _put3(normal, i, j, nx / m, ny / m, nz / m)
             else:
-                normal[i, j, 0] = ZERO
-                normal[i, j, 1] = ZERO
-                normal[i, j, 2] = ZERO
+                _put3(normal, i, j, ZERO, ZERO, ZERO)
 
 
 @njit(cache=True, error_model="numpy")
@@ -57,9 +61,7 @@ def _backward(a, D, N, bg, g_rgb, g_depth, g_normal, dC, da, dD, dN):
         for j in range(w):
             al = a[i, j]
             gr0, gr1, gr2 = g_rgb[i, j, 0], g_rgb[i, j, 1], g_rgb[i, j, 2]
-            dC[i, j, 0] = gr0
-            dC[i, j, 1] = gr1
-            dC[i, j, 2] = gr2
+            _put3(dC, i, j, gr0, gr1, gr2)
             ga = -(gr0 * bg[0] + gr1 * bg[1] + gr2 * bg[2])
             covered = al > ZERO
             gd = g_depth[i, j]
@@ -79,17 +81,11 @@ def _backward(a, D, N, bg, g_rgb, g_depth, g_normal, dC, da, dD, dN):
                 if n >= EPS_N:  # d(N / |N|) = (g - u (u . g)) / |N|, u = N / |N|
                     ux, uy, uz = nx / n, ny / n, nz / n
                     ug = ux * gx + uy * gy + uz * gz
-                    dN[i, j, 0] = (gx - ux * ug) / n
-                    dN[i, j, 1] = (gy - uy * ug) / n
-                    dN[i, j, 2] = (gz - uz * ug) / n
+                    _put3(dN, i, j, (gx - ux * ug) / n, (gy - uy * ug) / n, (gz - uz * ug) / n)
                 else:  # the clamp holds the length: N / 1e-12
-                    dN[i, j, 0] = gx / m
-                    dN[i, j, 1] = gy / m
-                    dN[i, j, 2] = gz / m
+                    _put3(dN, i, j, gx / m, gy / m, gz / m)
             else:
-                dN[i, j, 0] = ZERO
-                dN[i, j, 1] = ZERO
-                dN[i, j, 2] = ZERO
+                _put3(dN, i, j, ZERO, ZERO, ZERO)
 
 
 def _np(t: torch.Tensor) -> np.ndarray:
