@@ -14,7 +14,7 @@ from pathlib import Path
 
 from common import Run, add_run_args
 from vid2sim.factory.synthetic import generate_street, preset, render_video, write_ground_truth_bundle
-from vid2sim.factory.synthetic.render import render_threads
+from vid2sim.threads import usable_cpus
 
 
 def main() -> None:
@@ -40,7 +40,7 @@ def measure(run: Run, a: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     scene = generate_street(conf)
     t1 = time.perf_counter()
-    threads = a.threads or render_threads()
+    threads = a.threads or usable_cpus()
     c1 = time.process_time()
     clip = render_video(scene, conf, out / "clip", threads=threads)
     render_cpu = time.process_time() - c1

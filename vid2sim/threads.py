@@ -17,6 +17,11 @@ import numba
 import torch
 
 
+def usable_cpus() -> int:
+    """The CPUs this process may run on (its affinity mask where the OS has one)."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
 def set_thread_pools(threads: int) -> None:
     """Set torch's, numba's (this thread's) and OpenMP's thread counts to `threads` (>= 1)."""
     torch.set_num_threads(threads)

@@ -24,6 +24,8 @@ import numpy as np
 import torch
 from numba import njit
 
+from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
+
 
 @njit(cache=True)
 def _ncc_patches(r, d, m, patch, stride, min_valid, eps, grad):
@@ -65,21 +67,8 @@ def _ncc_patches(r, d, m, patch, stride, min_valid, eps, grad):
     return total, kept
 
 
-class _FusedNCC(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, rendered, prior, valid, patch, stride, min_valid, eps):
-        r = np.ascontiguousarray(rendered.detach().numpy())
-        grad = np.zeros(r.shape, r.dtype)
-        total, kept = _ncc_patches(r, np.ascontiguousarray(prior.detach().numpy()),
-                                   np.ascontiguousarray(valid.numpy()), patch, stride, min_valid,
-                                   eps, grad)
-        grad *= -1.0 / max(kept, 1)
-        ctx.grad = torch.from_numpy(grad)  # dL / d rendered
-        return rendered.new_tensor(1.0 - total / kept if kept else 0.0)
-
-    @staticmethod
-    def backward(ctx, g):
-        return g * ctx.grad, None, None, None, None, None, None
+class _FusedNCC(PrecomputedGrad):
+    """The patch-NCC depth loss's autograd node."""
 
 
 def ncc_applies(rendered: torch.Tensor, prior: torch.Tensor) -> bool:
@@ -96,5 +85,9 @@ def ncc_depth_loss_fused(rendered: torch.Tensor, prior: torch.Tensor, valid: tor
     qualifies), differentiable in rendered only; CPU tensors (see `ncc_applies`)."""
     if not ncc_applies(rendered, prior) or valid.shape != rendered.shape:
         raise ValueError("ncc_depth_loss_fused: CPU depth maps [H, W] of one shape, prior without grad")
-    return _FusedNCC.apply(rendered, prior.to(rendered.dtype), valid.to(torch.bool), int(patch),
-                           int(stride), float(min_valid), float(eps))
+    r = as_numpy(rendered)
+    grad = np.zeros(r.shape, r.dtype)
+    total, kept = _ncc_patches(r, as_numpy(prior.to(rendered.dtype)), as_numpy(valid.to(torch.bool)),
+                               int(patch), int(stride), float(min_valid), float(eps), grad)
+    grad *= -1.0 / max(kept, 1)
+    return loss_with_grad(_FusedNCC, rendered, 1.0 - total / kept if kept else 0.0, grad)

@@ -22,6 +22,8 @@ import numpy as np
 import torch
 from numba import njit
 
+from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
+
 EPS = 1e-8  # losses.normal_loss's cosine eps
 
 
@@ -77,38 +79,12 @@ def _geo_terms(n, depth, valid, grad):
     return num, den
 
 
-class _FusedNormal(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, rendered, prior, valid):
-        r = _np(rendered)
-        grad = np.zeros(r.shape, r.dtype)
-        total, count = _normal_terms(r, _np(prior), _np(valid), EPS, grad)
-        grad *= -1.0 / max(count, 1)
-        ctx.grad = torch.from_numpy(grad)
-        return rendered.new_tensor(1.0 - total / max(count, 1))
-
-    @staticmethod
-    def backward(ctx, g):
-        return g * ctx.grad, None, None
+class _FusedNormal(PrecomputedGrad):
+    """The normal loss's autograd node."""
 
 
-class _FusedGeo(torch.autograd.Function):
-    @staticmethod
-    def forward(ctx, normals, depth, valid):
-        n = _np(normals)
-        grad = np.zeros(n.shape, n.dtype)
-        num, den = _geo_terms(n, _np(depth), _np(valid), grad)
-        grad *= 1.0 / den if den > 0 else 0.0
-        ctx.grad = torch.from_numpy(grad)
-        return normals.new_tensor(num / den if den > 0 else 0.0)
-
-    @staticmethod
-    def backward(ctx, g):
-        return g * ctx.grad, None, None
-
-
-def _np(t: torch.Tensor) -> np.ndarray:
-    return np.ascontiguousarray(t.detach().numpy())
+class _FusedGeo(PrecomputedGrad):
+    """The geometry-consistency loss's autograd node."""
 
 
 def normals_apply(normals: torch.Tensor, other: torch.Tensor) -> bool:
@@ -123,11 +99,19 @@ def normal_loss_fused(rendered: torch.Tensor, prior: torch.Tensor, valid: torch.
     """`losses.normal_loss(rendered, prior, valid)`, differentiable in rendered only."""
     if not normals_apply(rendered, prior) or prior.shape != rendered.shape or valid.shape != rendered.shape[:2]:
         raise ValueError("normal_loss_fused: CPU normal maps [H, W, 3] of one shape, prior without grad")
-    return _FusedNormal.apply(rendered, prior, valid.to(torch.bool))
+    r = as_numpy(rendered)
+    grad = np.zeros(r.shape, r.dtype)
+    total, count = _normal_terms(r, as_numpy(prior), as_numpy(valid.to(torch.bool)), EPS, grad)
+    grad *= -1.0 / max(count, 1)
+    return loss_with_grad(_FusedNormal, rendered, 1.0 - total / max(count, 1), grad)
 
 
 def geo_loss_fused(normals: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
     """`losses.geo_consistency_loss(normals, depth, valid)`, differentiable in normals only."""
     if not normals_apply(normals, depth) or depth.dim() != 2 or valid.shape != depth.shape:
         raise ValueError("geo_loss_fused: CPU normals [H, W, 3] with depth and valid [H, W]")
-    return _FusedGeo.apply(normals, depth.detach(), valid.to(torch.bool))
+    n = as_numpy(normals)
+    grad = np.zeros(n.shape, n.dtype)
+    num, den = _geo_terms(n, as_numpy(depth), as_numpy(valid.to(torch.bool)), grad)
+    grad *= 1.0 / den if den > 0 else 0.0
+    return loss_with_grad(_FusedGeo, normals, num / den if den > 0 else 0.0, grad)

@@ -14,7 +14,6 @@ Reads a StreetScene + StreetConfig; writes into out_dir:
 from __future__ import annotations
 
 import json
-import os
 import time
 from collections import deque
 from concurrent.futures import ThreadPoolExecutor
@@ -35,6 +34,7 @@ from vid2sim.factory.synthetic.geometry import face_areas
 from vid2sim.factory.synthetic.mesh_io import write_mesh_ply
 from vid2sim.factory.synthetic.geometry import face_normals
 from vid2sim.factory.synthetic.street import StreetScene
+from vid2sim.threads import usable_cpus
 from vid2sim.factory.synthetic.textures import SKY_HORIZON, albedo, shade, sky
 from vid2sim.factory.synthetic.trajectory import walking_poses
 from vid2sim.versioning import to_jsonable
@@ -155,11 +155,6 @@ def rendered_frames(renderer: StreetRenderer, poses: np.ndarray, threads: int) -
             yield pending.popleft().result()
 
 
-def render_threads() -> int:
-    """Threads for the frames: the CPUs this process may use."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-
-
 def vecmat(v: np.ndarray, M: np.ndarray) -> np.ndarray:
     """v @ M for v [N, 3], M [3, 3] (numpy's matmul is slow for a 3-wide inner dimension)."""
     M = M.astype(v.dtype)
@@ -254,7 +249,7 @@ def render_video(scene: StreetScene, conf: StreetConfig, out_dir: Path,
             (out_dir / sub).mkdir(exist_ok=True)
     container, stream = _open_video(out_dir / "video.tmp.mp4", conf)
     try:
-        frames = rendered_frames(renderer, T, render_threads() if threads is None else threads)
+        frames = rendered_frames(renderer, T, usable_cpus() if threads is None else threads)
         for i, out in enumerate(frames):
             for pkt in stream.encode(av.VideoFrame.from_ndarray(out["rgb"], format="rgb24")):
                 container.mux(pkt)
