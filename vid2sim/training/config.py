@@ -73,6 +73,9 @@ class DistillConfig:
     # SR 0.75 against 0.70 without, 3 seeds, un-augmented envs (docs/studies/pixel_distillation.md)
     ema_decay: float = 0.999
     shift_pad: int = 4  # random-shift augmentation, pixels at the student's input size (0: off)
+    # probability that a learner sample is seen in a mirror (frames flipped left to right, steering and the
+    # goal's heading negated; training/distill.py `Batch.mirrored`); 0: off
+    mirror: float = 0.0
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
     drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)
@@ -102,6 +105,8 @@ class DistillConfig:
             self.student = StudentConfig(**self.student)
         if self.eviction not in EVICTIONS:
             raise ValueError(f"DistillConfig.eviction: {self.eviction!r} is not one of {EVICTIONS}")
+        if not 0.0 <= self.mirror <= 1.0:
+            raise ValueError(f"DistillConfig.mirror: {self.mirror} is not a probability in [0, 1]")
 
 
 @checked

@@ -17,7 +17,8 @@ does, in order:
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
      labels (optionally weighted towards hard turns, `steer_weight`), on batches with random-shift
-     augmentation (DrQ), warm-started from the last round;
+     augmentation (DrQ) and optionally mirrored samples (`mirror`: the flipped frames with the
+     steering and the goal's heading negated), warm-started from the last round;
      a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
      teacher's privileged clearance over the view (K ray ranges, `TeacherLabels`), an auxiliary
      target that asks the encoder to see how far away what it faces is (`clearance_weight`);
@@ -95,6 +96,20 @@ class Batch:
     def take(self, idx: np.ndarray) -> "Batch":
         """Rows idx of every field."""
         return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx])
+
+    def mirrored(self, rows: np.ndarray) -> "Batch":
+        """A copy in which the states `rows` (bool [N]) are seen in a mirror: frames, clearance rays and
+        depth cells flipped left to right, the goal's heading and the teacher's steering negated
+        (the camera's principal point is the image centre, so a mirrored frame is the view of the
+        mirrored street from the mirrored pose, and its label is the mirrored label)."""
+        out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
+                    self.depth.copy())
+        out.frames[rows] = out.frames[rows][..., ::-1]  # [n, F, C, h, w] flipped along w
+        out.vectors[rows, :, 1] *= -1.0  # heading to the goal / pi
+        out.actions[rows, 1] *= -1.0  # steering (+ turns left)
+        out.clearance[rows] = out.clearance[rows][:, ::-1]  # rays ordered across the view
+        out.depth[rows] = out.depth[rows][..., ::-1]  # [n, 9, 16] cells flipped along the columns
+        return out
 
 
 class Dataset:
@@ -311,7 +326,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
         conf: DistillConfig, rng: np.random.Generator, averaged: Optional[AveragedModel] = None) -> dict[str, float]:
     """`conf.updates_per_round` AdamW steps of `action_loss` to the teacher's labels on batches of
     `conf.batch_size`, random-shifted by `conf.shift_pad`, drawn uniformly from `data` (a Dataset,
-    sampled in place, or one Batch); a student with a clearance head also regresses the teacher's
+    sampled in place, or one Batch), each sample seen in a mirror with probability `conf.mirror`
+    (`Batch.mirrored`); a student with a clearance head also regresses the teacher's
     clearance readings, that loss weighted by `conf.clearance_weight`, and one with a depth head the
     frame's blocked depth (`depth_loss`), weighted by `conf.depth_weight`; `conf.steer_weight`: see
     `action_loss`. `averaged` (an exponential moving average of the student's weights,
@@ -327,6 +343,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
+        if conf.mirror > 0:
+            batch = batch.mirrored(rng.random(batch_size) < conf.mirror)
         x = random_shift(torch.from_numpy(batch.frames).float(), conf.shift_pad, gen)
         pred = student.outputs(x, torch.from_numpy(batch.vectors))
         labels = torch.from_numpy(batch.actions)
