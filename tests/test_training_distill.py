@@ -526,3 +526,43 @@ def test_steering_bins_learn_a_turn_that_regression_averages_away(tmp_path):
         np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image, vector), expected, atol=1e-5)
     with pytest.raises(ValueError, match="steer_bins"):
         StudentConfig(steer_bins=2)
+
+
+def test_a_mirrored_state_flips_its_views_and_negates_its_steering_and_heading():
+    rng = np.random.default_rng(0)
+    n = 4
+    data = Batch(rng.integers(0, 256, (n, 2, 3, 36, 64), dtype=np.uint8), rng.normal(size=(n, 6, 2)).astype(np.float32),
+                 rng.uniform(-1, 1, (n, 2)).astype(np.float32), rng.uniform(0, 1, (n, 9)).astype(np.float32),
+                 rng.integers(0, 256, (n, *DEPTH_GRID), dtype=np.uint8))
+    rows = np.array([True, False, True, False])
+    seen = data.mirrored(rows)
+    np.testing.assert_array_equal(seen.frames[0, :, :, :, 0], data.frames[0, :, :, :, -1])  # left edge <- right edge
+    np.testing.assert_array_equal(seen.frames[1], data.frames[1])  # rows not drawn are untouched
+    np.testing.assert_array_equal(seen.vectors[rows, :, 0], data.vectors[rows, :, 0])  # distance kept
+    np.testing.assert_array_equal(seen.vectors[rows, :, 1], -data.vectors[rows, :, 1])  # heading negated
+    np.testing.assert_array_equal(seen.actions[rows], data.actions[rows] * np.float32([1, -1]))  # speed kept
+    np.testing.assert_array_equal(seen.clearance[2], data.clearance[2, ::-1])
+    np.testing.assert_array_equal(seen.depth[2], data.depth[2, :, ::-1])
+    twice = seen.mirrored(rows)
+    for field in ("frames", "vectors", "actions", "clearance", "depth"):
+        np.testing.assert_array_equal(getattr(twice, field), getattr(data, field))  # and the original is a copy
+    with pytest.raises(ValueError, match="mirror"):
+        DistillConfig(mirror=1.5)
+
+
+def test_mirrored_samples_teach_the_mirrored_turn():
+    """Every label says "the bright side is on the left: turn left"; with mirrored samples the
+    student also learns to turn right when the bright side is on the right."""
+    n = 64
+    left = np.zeros((n, 2, 3, 36, 64), np.uint8)
+    left[..., :32] = 255
+    data = Batch(left, np.zeros((n, 6, 2), np.float32), np.tile(np.float32([[0.5, 0.8]]), (n, 1)))
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2))
+    optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3, weight_decay=0.0))
+    fit(student, optimizer, data, DistillConfig(updates_per_round=200, batch_size=32, shift_pad=0, mirror=0.5),
+        np.random.default_rng(1))
+    with torch.no_grad():
+        views = torch.from_numpy(np.stack([left[0], left[0, ..., ::-1]])).float()
+        steering = student.act(views, torch.zeros(2, 6, 2))[:, 1].numpy()
+    assert steering[0] > 0.5 and steering[1] < -0.5
