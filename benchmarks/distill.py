@@ -167,7 +167,9 @@ def run_heldout(args, run: Run) -> None:
     if args.ensemble:
         run_ensembles(args, run, reg, trained)
     for gain in args.eval_steer_gains:
-        run_steer_gain(args, run, reg, trained, gain)
+        run_driving(args, run, reg, trained, f"steer gain {gain:g}", steer_gain=gain)
+    if args.eval_mirror_average:
+        run_driving(args, run, reg, trained, "mirror average", mirror_average=True)
 
 
 def evaluate_policy(args, run: Run, reg: str, policy_dir: Path, name: str, budget: dict,
@@ -208,22 +210,23 @@ def run_ensembles(args, run: Run, reg: str, trained: list[tuple[Path, dict]]) ->
     report_pooled(run, successes, f"all ensembles of {k}", {"seeds": list(args.seeds), "env_steps": args.steps})
 
 
-def run_steer_gain(args, run: Run, reg: str, trained: list[tuple[Path, dict]], gain: float) -> None:
-    """The trained students driving with steering gain `gain` (`StudentConfig.steer_gain`, their weights
-    unchanged; written to RUN_gainG/student.pt): held-out SR, and SR on training streets with --train-eval,
-    which is where a gain is chosen without looking at the held-out streets."""
+def run_driving(args, run: Run, reg: str, trained: list[tuple[Path, dict]], label: str, **settings) -> None:
+    """The trained students driving with other driving settings (`StudentPolicy.driving_with`: a steering
+    gain, the mirror average; their weights unchanged; written to RUN_LABEL/student.pt): held-out SR, and SR
+    on training streets with --train-eval, which is where a setting is chosen without looking at the
+    held-out streets."""
     successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
     for run_dir, budget in trained:
-        folder = run_dir.with_name(f"{run_dir.name}_gain{gain:g}")
+        folder = run_dir.with_name(f"{run_dir.name}_{label.replace(' ', '')}")
         folder.mkdir(exist_ok=True)
-        load_student(run_dir / STUDENT_NAME).with_steer_gain(gain).save(folder / STUDENT_NAME)
+        load_student(run_dir / STUDENT_NAME).driving_with(**settings).save(folder / STUDENT_NAME)
         (folder / "config.json").write_text((run_dir / "config.json").read_text())  # its training streets
-        name = f"seed {budget['seed']}, steer gain {gain:g}"
-        evaluate_policy(args, run, reg, folder, name, {**budget, "steer_gain": gain}, successes)
+        name = f"seed {budget['seed']}, {label}"
+        evaluate_policy(args, run, reg, folder, name, {**budget, **settings}, successes)
         if args.train_eval:
-            eval_training_streets(args, run, reg, folder, {**budget, "steer_gain": gain}, name)
-    report_pooled(run, successes, f"all seeds, steer gain {gain:g}",
-                  {"seeds": list(args.seeds), "env_steps": args.steps, "steer_gain": gain})
+            eval_training_streets(args, run, reg, folder, {**budget, **settings}, name)
+    report_pooled(run, successes, f"all seeds, {label}", {"seeds": list(args.seeds), "env_steps": args.steps,
+                                                          **settings})
 
 
 def eval_training_streets(args, run: Run, reg: str, run_dir: Path, budget: dict, name: str = "") -> None:
@@ -292,6 +295,8 @@ def main() -> None:
                     help="student: steering gain when it drives (collection and evaluation), not in its loss")
     ap.add_argument("--eval-steer-gains", type=float, nargs="*", default=[],
                     help="heldout: also evaluate the trained students driving with each of these steering gains")
+    ap.add_argument("--eval-mirror-average", action="store_true",
+                    help="heldout: also evaluate the trained students driving with their mirror average")
     ap.add_argument("--weight-decay", type=float, default=DistillConfig.weight_decay,
                     help="decoupled weight decay of the student (AdamW)")
     ap.add_argument("--clearance-rays", type=int, default=StudentConfig.clearance_rays,

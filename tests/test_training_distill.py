@@ -184,7 +184,7 @@ def test_a_steering_gain_turns_harder_when_driving_not_in_the_loss_and_exports(t
     student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
     image = torch.randint(0, 256, (5, 6, 3, 72, 128), dtype=torch.uint8)
     vector = torch.randn(5, 6, 2)
-    harder = student.with_steer_gain(2.5)
+    harder = student.driving_with(steer_gain=2.5)
     assert student.config.steer_gain == 1.0 and harder.config.steer_gain == 2.5
     with torch.no_grad():
         base, driven = student(image, vector), harder(image, vector)
@@ -204,6 +204,30 @@ def test_a_steering_gain_turns_harder_when_driving_not_in_the_loss_and_exports(t
         StudentConfig(steer_gain=0.0)
     with pytest.raises(ValueError, match="steer_gain"):
         StudentConfig(steer_bins=5, steer_gain=2.0)
+
+
+def test_the_mirror_average_treats_left_and_right_alike_and_exports(tmp_path):
+    """mirror_average: the driven action is the mean of the action and the mirrored action of the
+    mirrored view, so the mirrored view gets exactly the mirrored action; saved and exported alike."""
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
+    image = torch.randint(0, 256, (5, 6, 3, 72, 128), dtype=torch.uint8)
+    vector = torch.randn(5, 6, 2)
+    flip = torch.tensor([1.0, -1.0])
+    both = student.driving_with(mirror_average=True)
+    with torch.no_grad():
+        plain, mirrored_plain = student(image, vector), student(image.flip(-1), vector * flip)
+        driven, mirrored = both(image, vector), both(image.flip(-1), vector * flip)
+        torch.testing.assert_close(driven, 0.5 * (plain + mirrored_plain * flip))
+        torch.testing.assert_close(mirrored, driven * flip)
+        assert not torch.allclose(mirrored_plain, plain * flip, atol=1e-3)  # the plain student is not symmetric
+    both.save(tmp_path / STUDENT_NAME)
+    out = export_policy(tmp_path, tmp_path / "export")
+    for backend in ("onnx", "torch"):
+        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image.numpy(), vector.numpy()),
+                                   driven.numpy(), atol=1e-5)
+    with pytest.raises(ValueError, match="not driving settings"):
+        student.driving_with(frames=3)
 
 
 def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():

@@ -28,6 +28,9 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
   a regressed steering averages them to straight ahead, the bins keep both; the action is the
   probability-weighted steering of the most likely bin and its two neighbours
   (`steer_from_logits`, in the exported graph too);
+- optionally (`mirror_average`) driving with the mean of its action and the mirrored action for
+  the mirrored view, so it turns left where it would turn right in the mirrored street (pairs
+  with the learner's mirrored samples, `DistillConfig.mirror`); twice the inference;
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
   clearance readings in [0, 1], trained as an auxiliary target and left out of the export;
 - optionally (`depth_target`) a 1 x 1 conv head on the latest frame's last conv map (5 x 8 at
@@ -72,6 +75,9 @@ class StudentConfig:
     steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
     depth_target: bool = False  # auxiliary head: the latest frame's nearest depth per cell of the last conv map
     steer_gain: float = 1.0  # when driving: steering tanh(gain x pre-activation); the learner's loss sees gain 1
+    # when driving: the mean of its action and the mirrored action for the mirrored view (frames flipped left
+    # to right, the goal's heading negated), so left and right are treated exactly alike; the loss sees one pass
+    mirror_average: bool = False
 
     def __post_init__(self) -> None:  # single fields: their ranges (vid2sim.ranges: frames 1..6, pool >= 1, ...)
         if (self.frames - 1) * self.frame_stride + 1 > STACK:
@@ -155,8 +161,14 @@ class StudentPolicy(nn.Module):
 
     def act(self, frames: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> the actions it drives
-        with [B, 2] (steering with the config's `steer_gain`)."""
-        return self.outputs(frames, vector, self.config.steer_gain).actions
+        with [B, 2] (steering with the config's `steer_gain`; with `mirror_average`, averaged with its own
+        mirror image)."""
+        actions = self.outputs(frames, vector, self.config.steer_gain).actions
+        if not self.config.mirror_average:
+            return actions
+        flip = actions.new_tensor([1.0, -1.0])  # [2]: distance and speed kept, heading and steering negated
+        mirrored = self.outputs(frames.flip(-1), vector * flip, self.config.steer_gain).actions * flip
+        return 0.5 * (actions + mirrored)
 
     def outputs(self, frames: torch.Tensor, vector: torch.Tensor, steer_gain: float = 1.0) -> "StudentOutputs":
         """The actions (regressed steering tanh(steer_gain x pre-activation); the learner's losses use 1),
@@ -195,10 +207,14 @@ class StudentPolicy(nn.Module):
     def save(self, path) -> None:
         torch.save(self.checkpoint(), path)
 
-    def with_steer_gain(self, gain: float) -> "StudentPolicy":
-        """The same weights driving with steering gain `gain` (a copy; this student is unchanged)."""
+    def driving_with(self, **settings) -> "StudentPolicy":
+        """The same weights driving with other `StudentConfig` driving settings (`steer_gain`,
+        `mirror_average`; a copy, this student is unchanged)."""
+        unknown = set(settings) - {"steer_gain", "mirror_average"}
+        if unknown:
+            raise ValueError(f"driving_with: {sorted(unknown)} are not driving settings (steer_gain, mirror_average)")
         ckpt = self.checkpoint()
-        ckpt["config"]["steer_gain"] = gain
+        ckpt["config"].update(settings)
         return StudentPolicy.from_checkpoint(ckpt)
 
     @classmethod
