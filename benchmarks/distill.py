@@ -73,7 +73,8 @@ def distill_config(args) -> DistillConfig:
                             depth_target=args.depth_target, vector_history=args.vector_history,
                             steer_gain=args.steer_gain)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
-                   max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad, mirror=args.mirror,
+                   max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
+                   mirror=args.mirror, min_beta=args.min_beta,
                    teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
                    teacher_lookahead=args.teacher_lookahead, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
@@ -282,6 +283,8 @@ def main() -> None:
     ap.add_argument("--max-samples", type=int, default=DistillConfig.max_samples, help="dataset cap (labelled states)")
     ap.add_argument("--shift-pad", type=int, default=DistillConfig.shift_pad,
                     help="random-shift augmentation in student pixels (0: off)")
+    ap.add_argument("--min-beta", type=float, default=DistillConfig.min_beta,
+                    help="floor of the teacher's share of the collected episodes in every round")
     ap.add_argument("--mirror", type=float, default=DistillConfig.mirror,
                     help="probability that a learner sample is seen in a mirror (flipped frames, negated steering)")
     ap.add_argument("--eviction", default="oldest", choices=EVICTIONS, help="over the cap: what goes")
