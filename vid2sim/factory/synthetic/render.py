@@ -34,9 +34,9 @@ from vid2sim.factory.synthetic.geometry import face_areas
 from vid2sim.factory.synthetic.mesh_io import write_mesh_ply
 from vid2sim.factory.synthetic.geometry import face_normals
 from vid2sim.factory.synthetic.street import StreetScene
-from vid2sim.threads import usable_cpus
 from vid2sim.factory.synthetic.textures import SKY_HORIZON, albedo, shade, sky
 from vid2sim.factory.synthetic.trajectory import walking_poses
+from vid2sim.threads import usable_cpus
 from vid2sim.versioning import to_jsonable
 
 STAGE = "synthetic_render"
