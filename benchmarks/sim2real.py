@@ -7,7 +7,7 @@ rendered from it. For the first `--train` streets of the registry's training spl
 streets, `benchmarks/street_registry.py --vary`): render the walk as a 10-s 854x480 video
 (`synthetic.varied(seed, "demo")`), ingest every video through the factory (`fast` pipeline,
 `quick` reconstruction preset) into a second registry, then distill three students with the
-same recipe (the default distillation recipe; `--teacher-replan`), seed and budget:
+same recipe (the default distillation recipe; `--teacher-replan`, `--mirror`), seed and budget:
   splat    on the reconstructed scenes, rendered from their Gaussian splats (Vid2Sim);
   mesh-rgb on the same reconstructions, rendered from their coloured visual mesh (the paper's
            mesh baseline, `--variant mesh-rgb`);
@@ -136,7 +136,7 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          n_actors=0, seed=args.seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
-                         distill=replace(DistillConfig(), teacher_replan=args.teacher_replan))
+                         distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror))
     return run_dir, train_or_reuse(config, scenes=scene_ids)
 
 
@@ -228,6 +228,8 @@ def main() -> None:
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--teacher-replan", type=float, default=DistillConfig.teacher_replan,
                     help="m off its path at which the teacher re-plans (0: at every state)")
+    ap.add_argument("--mirror", type=float, default=DistillConfig.mirror,
+                    help="probability that a learner sample is seen in a mirror (flipped frames, negated steering)")
     ap.add_argument("--trials", type=int, default=10, help="episodes per held-out GT street")
     ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
     ap.add_argument("--mesh-world-trials", type=int, default=0,
