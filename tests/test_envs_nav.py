@@ -6,6 +6,7 @@ collision mesh stopping the robot, the map-size refusal and the scripted expert.
 
 from __future__ import annotations
 
+import math
 
 import gymnasium
 import numpy as np
@@ -222,6 +223,7 @@ def test_expert_reaches_goals_and_episode_record(registry):
     ends = []
     for seed in range(2):
         env.reset(seed=seed)
+        start = env.unwrapped.robot_pose()
         expert.reset(env)
         terminated = truncated = False
         while not (terminated or truncated):
@@ -229,6 +231,11 @@ def test_expert_reaches_goals_and_episode_record(registry):
         rec = info["nav_episode"]
         ends.append(rec.end)
         assert rec.steps == info["steps"] and rec.path_length > 0
+        # where the episode began, aimed and ended, in the scene frame
+        assert rec.start_pose == pytest.approx(start)
+        assert rec.end_pose == pytest.approx(env.unwrapped.robot_pose())
+        assert math.dist(rec.end_pose[:2], rec.goal) <= env.unwrapped.config.reward.success_radius
+        assert math.dist(rec.start_pose[:2], rec.goal) > 1.0
     assert ends == ["success", "success"]
 
 

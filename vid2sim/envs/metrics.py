@@ -32,6 +32,10 @@ class EpisodeRecord:
     proximity_steps: int  # control steps within the proximity radius of a pedestrian (no contact)
     steps: int
     end: str = ""
+    # where it happened, in the scene frame (m, rad): empty in records written before they were kept
+    start_pose: tuple[float, ...] = ()  # (x, y, yaw) at reset
+    goal: tuple[float, ...] = ()  # (x, y)
+    end_pose: tuple[float, ...] = ()  # (x, y, yaw) at the last step
 
 
 def spl(e: EpisodeRecord) -> float:

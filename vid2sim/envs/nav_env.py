@@ -329,7 +329,11 @@ class NavEnv(gym.Env):
         return EpisodeRecord(success=end == "success", shortest_length=self.shortest,
                              path_length=self.travelled, collision_events=self.collision_events,
                              collision_steps=self.collision_steps,
-                             proximity_steps=self.proximity_steps, steps=self.steps, end=end)
+                             proximity_steps=self.proximity_steps, steps=self.steps, end=end,
+                             start_pose=(float(self.episode.start[0]), float(self.episode.start[1]),
+                                         float(self.episode.start_yaw)),
+                             goal=(float(self.episode.goal[0]), float(self.episode.goal[1])),
+                             end_pose=tuple(float(v) for v in self.robot_pose()))
 
     def expert_path(self) -> np.ndarray:
         """A* waypoints [K, 2] the scripted expert follows (obstacles avoided; the comfortable route
