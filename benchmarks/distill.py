@@ -1,6 +1,6 @@
 """Pixel agents distilled from the A* teacher: held-out success over seeds, SocialNav, the scene-count study.
 
-    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 --steps 112000 [--socialnav] [--train-eval 8]
+    python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 [--socialnav] [--train-eval 8]   # the bar
     python benchmarks/distill.py heldout --streets 40 --seeds 0 1 2 3 4 5 6 7 8 --ensemble 3   # 3 ensembles of 3
     python benchmarks/distill.py study --streets 40 --counts 1,5,15,25,30 --seeds 0 1 2 --steps 40000
     python benchmarks/distill.py heldout --root ROOT2 --streets 40 --extra-streets 32 --seeds 0 1 2 --steps 64000
@@ -269,7 +269,7 @@ def main() -> None:
     ap.add_argument("--root", type=Path, default=Path("/tmp/vid2sim-distill"))
     ap.add_argument("--streets", type=int, default=12, help="varied streets in the registry (20 %% held out)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
+    ap.add_argument("--steps", type=int, default=128_000, help="env steps per training")
     ap.add_argument("--steps-per-round", type=int, default=4000)
     ap.add_argument("--updates-per-round", type=int, default=DistillConfig.updates_per_round)
     ap.add_argument("--envs", type=int, default=8)

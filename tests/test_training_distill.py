@@ -43,8 +43,9 @@ def tiny_config(registry, run_dir, total_steps: int, n_actors: int = 0) -> Train
 
 
 def fit_conf(updates: int, batch_size: int, **weights: float) -> DistillConfig:
-    """The learner settings `fit` reads: `updates` steps of `batch_size`, no random shift."""
-    return DistillConfig(updates_per_round=updates, batch_size=batch_size, shift_pad=0, **weights)
+    """The learner settings `fit` reads: `updates` steps of `batch_size`, no random shift, no mirror
+    (unless `mirror=` says otherwise)."""
+    return DistillConfig(updates_per_round=updates, batch_size=batch_size, shift_pad=0, **{"mirror": 0.0, **weights})
 
 
 @pytest.fixture(scope="module")

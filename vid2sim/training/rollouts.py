@@ -48,7 +48,7 @@ class EnvSpec:
     teacher: bool = False  # wrap in `TeacherLabels` (the expert's label of every state in the infos)
     teacher_clearance_rays: int = 0  # with teacher: also its privileged clearance over the view, this many rays
     teacher_depth_grid: Optional[tuple[int, int]] = None  # with teacher: also the frame's depth in h x w blocks
-    teacher_replan: float = 0.3  # with teacher: m off its path at which it re-plans (0: every state)
+    teacher_replan: float = 0.0  # with teacher: m off its path at which it re-plans (0: every state)
     teacher_lookahead: float = 1.0  # with teacher: m ahead on its path its pure pursuit aims
 
     def make(self) -> gym.Env:
