@@ -21,7 +21,11 @@ flat-coloured GT mesh (`--mesh-world-trials`) and the same streets built with mo
 also be reconstructed through the factory the same way (`--recon-world-trials`): every student is
 then evaluated in those reconstructions too, rendered from their splats, with the factory's own
 walkable maps and collision meshes (the pixel policy's bar on scenes the factory made: trained on
-reconstructions, tested on reconstructions of streets it never saw). Every stage is resumable:
+reconstructions, tested on reconstructions of streets it never saw); there, success is also
+split by the episode's direction along the filmed walk (with it / against it, and starts past
+either end of the walk, on ground the camera saw only from afar), from the records' start poses
+and goals and the scenes' camera paths.
+Every stage is resumable:
 finished renders, reconstructions, trainings and evaluations of the same protocol are reused.
 """
 
@@ -38,6 +42,7 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 from common import Run, add_run_args
 from distill import evaluate_saved, record_eval, train_or_reuse
 from street_registry import build
@@ -206,14 +211,67 @@ def run_sim2real(args, run: Run) -> None:
 
 def evaluate_in(args, run: Run, name: str, run_dir: Path, budget: dict, world: World) -> None:
     """The evaluation protocol (0-5 static obstacles, exact render) in `world`; a saved report of the
-    same protocol is reused."""
+    same protocol is reused. In reconstructions, also success by the episode's direction along the
+    walk the video was filmed on."""
+    checkouts = world.checkouts or args.root / "checkouts"
     config = EvalConfig(registry=world.registry, policy=str(run_dir), scene_ids=world.scene_ids,
                         trials=world.trials, obstacles="static", max_steps=args.eval_max_steps or None,
-                        variant=world.variant, checkout_root=str(world.checkouts or args.root / "checkouts"))
+                        variant=world.variant, checkout_root=str(checkouts))
     rep = evaluate_saved(config, run_dir / world.report)
-    record_eval(run, f"{name} student, seed {budget['seed']}, {world.label}", rep,
-                {k: v for k, v in budget.items() if k != "scenes"}
+    case = f"{name} student, seed {budget['seed']}, {world.label}"
+    record_eval(run, case, rep, {k: v for k, v in budget.items() if k != "scenes"}
                 | {"trials": world.trials, "scenes": len(world.scene_ids)})
+    if world.report == "eval_recon_held-out.json":
+        for group, success in by_walk_direction(rep.records, world.registry, checkouts).items():
+            run.record(f"{case}, {group}", "sr", float(np.mean(success)), "", {"episodes": len(success)})
+            print(json.dumps({"case": case, "episodes": group, "n": len(success),
+                              "sr": round(float(np.mean(success)), 3)}), flush=True)
+
+
+def walk_xy(registry: str, scene_id: str, checkouts: Path) -> np.ndarray:
+    """[K, 2] x, y of the scene's source-video camera centres in time order (every 10th and the last)."""
+    from vid2sim.formats.cameras import load_cameras
+
+    rec = Registry(registry).show(scene_id)
+    table = load_cameras(Registry(registry).checkout(scene_id, dest=checkouts / rec.ref) / "cameras.parquet")
+    c2w = np.array(table.column("cam_to_world").to_pylist()).reshape(-1, 4, 4)  # [N, 4, 4]
+    xy = c2w[np.argsort(table.column("timestamp").to_numpy()), :2, 3]  # [N, 2]
+    return np.vstack([xy[::10], xy[-1:]])
+
+
+def along_walk(walk: np.ndarray, xy) -> float:
+    """Arc length (m) along the polyline `walk` [K, 2] of its nearest point to `xy`, continued in a
+    straight line before its first and past its last point (negative / above the walk's length)."""
+    seg = np.diff(walk, axis=0)  # [K-1, 2]
+    length = np.linalg.norm(seg, axis=1)
+    start = np.r_[0.0, np.cumsum(length)]
+    best, s_best = np.inf, 0.0
+    for k in np.flatnonzero(length > 1e-9):
+        u = float(np.dot(np.asarray(xy) - walk[k], seg[k])) / length[k] ** 2
+        u = min(max(u, -np.inf if k == 0 else 0.0), np.inf if k == len(seg) - 1 else 1.0)
+        dist = float(np.linalg.norm(np.asarray(xy) - walk[k] - u * seg[k]))
+        if dist < best:
+            best, s_best = dist, start[k] + u * length[k]
+    return s_best
+
+
+def by_walk_direction(records: list[dict], registry: str, checkouts: Path) -> dict[str, list[bool]]:
+    """Episode successes grouped by where the episode runs against the filmed walk: the goal further
+    along the walk than the start ("with the walk") or back toward its beginning ("against the
+    walk"), and starts past either end of the walk (on ground the camera saw from afar)."""
+    walks: dict[str, np.ndarray] = {}
+    groups: dict[str, list[bool]] = {}
+    for r in records:
+        if not r.get("start_pose"):  # a report written before records kept the poses
+            continue
+        walk = walks.setdefault(r["scene_id"], walk_xy(registry, r["scene_id"], checkouts))
+        s0, s1 = along_walk(walk, r["start_pose"][:2]), along_walk(walk, r["goal"])
+        total = along_walk(walk, walk[-1])
+        groups.setdefault("with the walk" if s1 > s0 else "against the walk", []).append(r["success"])
+        past = s0 < -0.5 or s0 > total + 0.5
+        groups.setdefault("starting past an end of the walk" if past else "starting along the walk",
+                          []).append(r["success"])
+    return groups
 
 
 def main() -> None:
