@@ -232,8 +232,8 @@ def walk_xy(registry: str, scene_id: str, checkouts: Path) -> np.ndarray:
     """[K, 2] x, y of the scene's source-video camera centres in time order (every 10th and the last)."""
     from vid2sim.formats.cameras import load_cameras
 
-    rec = Registry(registry).show(scene_id)
-    table = load_cameras(Registry(registry).checkout(scene_id, dest=checkouts / rec.ref) / "cameras.parquet")
+    reg = Registry(registry)
+    table = load_cameras(reg.checkout(scene_id, dest=checkouts / reg.show(scene_id).ref) / "cameras.parquet")
     c2w = np.array(table.column("cam_to_world").to_pylist()).reshape(-1, 4, 4)  # [N, 4, 4]
     xy = c2w[np.argsort(table.column("timestamp").to_numpy()), :2, 3]  # [N, 2]
     return np.vstack([xy[::10], xy[-1:]])
@@ -264,9 +264,11 @@ def by_walk_direction(records: list[dict], registry: str, checkouts: Path) -> di
     for r in records:
         if not r.get("start_pose"):  # a report written before records kept the poses
             continue
-        walk = walks.setdefault(r["scene_id"], walk_xy(registry, r["scene_id"], checkouts))
+        if r["scene_id"] not in walks:
+            walks[r["scene_id"]] = walk_xy(registry, r["scene_id"], checkouts)
+        walk = walks[r["scene_id"]]
         s0, s1 = along_walk(walk, r["start_pose"][:2]), along_walk(walk, r["goal"])
-        total = along_walk(walk, walk[-1])
+        total = float(np.linalg.norm(np.diff(walk, axis=0), axis=1).sum())  # the walk's length, m
         groups.setdefault("with the walk" if s1 > s0 else "against the walk", []).append(r["success"])
         past = s0 < -0.5 or s0 > total + 0.5
         groups.setdefault("starting past an end of the walk" if past else "starting along the walk",
