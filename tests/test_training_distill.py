@@ -571,6 +571,10 @@ def test_a_mirrored_state_flips_its_views_and_negates_its_steering_and_heading()
     twice = seen.mirrored(rows)
     for field in ("frames", "vectors", "actions", "clearance", "depth"):
         np.testing.assert_array_equal(getattr(twice, field), getattr(data, field))  # and the original is a copy
+    in_place = data.take(np.arange(n))  # a copy, mirrored where it lies
+    assert in_place.mirror_rows(rows) is in_place
+    for field in ("frames", "vectors", "actions", "clearance", "depth"):
+        np.testing.assert_array_equal(getattr(in_place, field), getattr(seen, field))
     with pytest.raises(ValueError, match="mirror"):
         DistillConfig(mirror=1.5)
 

@@ -98,18 +98,22 @@ class Batch:
         return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx])
 
     def mirrored(self, rows: np.ndarray) -> "Batch":
-        """A copy in which the states `rows` (bool [N]) are seen in a mirror: frames, clearance rays and
+        """A copy in which the states `rows` (bool [N]) are seen in a mirror (`mirror_rows`)."""
+        out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
+                    self.depth.copy())
+        return out.mirror_rows(rows)
+
+    def mirror_rows(self, rows: np.ndarray) -> "Batch":
+        """The states `rows` (bool [N]) seen in a mirror, in place -> self: frames, clearance rays and
         depth cells flipped left to right, the goal's heading and the teacher's steering negated
         (the camera's principal point is the image centre, so a mirrored frame is the view of the
         mirrored street from the mirrored pose, and its label is the mirrored label)."""
-        out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
-                    self.depth.copy())
-        out.frames[rows] = out.frames[rows][..., ::-1]  # [n, F, C, h, w] flipped along w
-        out.vectors[rows, :, 1] *= -1.0  # heading to the goal / pi
-        out.actions[rows, 1] *= -1.0  # steering (+ turns left)
-        out.clearance[rows] = out.clearance[rows][:, ::-1]  # rays ordered across the view
-        out.depth[rows] = out.depth[rows][..., ::-1]  # [n, 9, 16] cells flipped along the columns
-        return out
+        self.frames[rows] = self.frames[rows][..., ::-1]  # [n, F, C, h, w] flipped along w
+        self.vectors[rows, :, 1] *= -1.0  # heading to the goal / pi
+        self.actions[rows, 1] *= -1.0  # steering (+ turns left)
+        self.clearance[rows] = self.clearance[rows][:, ::-1]  # rays ordered across the view
+        self.depth[rows] = self.depth[rows][..., ::-1]  # [n, 9, 16] cells flipped along the columns
+        return self
 
 
 class Dataset:
@@ -343,8 +347,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
         batch = data.gather(rng.integers(0, n, batch_size))
-        if conf.mirror > 0:
-            batch = batch.mirrored(rng.random(batch_size) < conf.mirror)
+        if conf.mirror > 0:  # the gathered batch is a fresh copy: mirrored in place
+            batch.mirror_rows(rng.random(batch_size) < conf.mirror)
         x = random_shift(torch.from_numpy(batch.frames).float(), conf.shift_pad, gen)
         pred = student.outputs(x, torch.from_numpy(batch.vectors))
         labels = torch.from_numpy(batch.actions)
