@@ -83,12 +83,13 @@ def distill_config(args) -> DistillConfig:
 
 
 def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr", "spl", "cost")) -> dict:
-    row = {}
+    row, ends = {}, rep.outcomes()  # ends: episodes per outcome (time-outs split into pinned and free)
     for k in metrics:
         m = rep.metrics[k]
         row[k] = [round(m.mean, 3), round(m.low, 3), round(m.high, 3)]
-        run.record(case, k, m.mean, "", {"ci95": [m.low, m.high], "episodes": rep.episodes, **budget})
-    print(json.dumps({"case": case, "episodes": rep.episodes, **row, **budget}), flush=True)
+        run.record(case, k, m.mean, "", {"ci95": [m.low, m.high], "episodes": rep.episodes, "outcomes": ends,
+                                         **budget})
+    print(json.dumps({"case": case, "episodes": rep.episodes, **row, "outcomes": ends, **budget}), flush=True)
     return row
 
 

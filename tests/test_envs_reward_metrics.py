@@ -1,9 +1,12 @@
 """Reward terms and metrics on hand-worked steps and episodes (no scene needed)."""
 
+from dataclasses import asdict
+
 import pytest
 
 from vid2sim.envs.config import RewardConfig
-from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl, summarize
+from vid2sim.envs.metrics import outcome as episode_outcome
+from vid2sim.envs.metrics import PINNED, EpisodeRecord, outcomes, sns, sns_proximity, spl, summarize
 from vid2sim.envs.reward import StepOutcome, reward
 
 C = RewardConfig()
@@ -73,3 +76,16 @@ def test_summary_hand_worked():
     assert s.cost == pytest.approx(5 / 3)
     assert s.sns == pytest.approx((0.98 + 0.8 + 1.0) / 3)
     assert s.sns_proximity == pytest.approx((0.98 + 0.6 + 1.0) / 3)
+
+
+def test_outcomes_split_time_outs_into_pinned_and_free():
+    from dataclasses import replace
+
+    pinned = replace(ep(False, 10.0, 1.0, events=1, coll_steps=300, steps=600), end="timeout")
+    free = replace(ep(False, 10.0, 30.0, events=2, coll_steps=299, steps=600), end="timeout")
+    off = replace(ep(False, 10.0, 4.0, steps=40), end="left_walkable")
+    records = [ep(True, 10.0, 11.0), pinned, pinned, free, off]
+    assert [episode_outcome(e) for e in records] == ["success", PINNED, PINNED, "timeout", "left_walkable"]
+    assert outcomes(records) == {PINNED: 2, "success": 1, "timeout": 1, "left_walkable": 1}
+    row = {"scene_id": "s", **asdict(pinned), "a_later_field": 1}  # a saved report's row
+    assert EpisodeRecord.from_row(row) == pinned

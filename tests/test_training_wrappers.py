@@ -101,9 +101,11 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
                                    "--scenes", SCENE, "--trials", "2", "--record", "1", "--record-dir", str(out),
                                    "--privileged", "--out", str(tmp_path / "report.json")])
     assert res.exit_code == 0, res.output
+    report = json.loads((tmp_path / "report.json").read_text())
+    ends = "success" if report["records"][0]["success"] else ""
+    assert f"outcomes: {ends}" in res.output  # how the episodes ended, printed below the metrics
     # the video, and beside it the episode's trace (poses, contacts, what the map shows)
     assert sorted(p.name for p in out.iterdir()) == [f"{SCENE}-trial0.mp4", f"{SCENE}-trial0.trace.json"]
-    report = json.loads((tmp_path / "report.json").read_text())
     assert report["videos"] == [str(out / f"{SCENE}-trial0.mp4")]
     cap = cv2.VideoCapture(str(out / f"{SCENE}-trial0.mp4"))
     frames = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))

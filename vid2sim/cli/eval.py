@@ -110,6 +110,8 @@ def policy(
         m = report.metrics[k]
         table.add_row(k, f"{m.mean:.3f}", f"[{m.low:.3f}, {m.high:.3f}]")
     Console().print(table)
+    typer.echo("outcomes: " + ", ".join(f"{k} {n}" for k, n in report.outcomes().items())
+               + " (pinned: a time-out spent mostly pressed against something)")
     for v in report.videos:
         typer.echo(f"video: {v}")
 

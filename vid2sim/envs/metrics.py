@@ -9,6 +9,9 @@
 - SNS: the social navigation score as MetaUrban's released evaluation code computes it
   (github.com/metadriverse/metaurban; Wu et al., "MetaUrban", ICLR 2025): mean over episodes of
   1 - (steps in collision) / (episode length).
+- Outcomes: how episodes end, time-outs split into "pinned" (the robot spent at least half the
+  episode's steps in contact: pressed against the mesh or an obstacle, which a robot that cannot
+  reverse does not leave) and "timeout" (it was still free to move).
 - SNS-proximity (documented second figure): as SNS, but a step also counts against the score
   when the robot is within `proximity_radius` (0.2 m, MetaUrban project page) of a pedestrian;
   the MetaUrban authors state the paper's SNS was not the released one (MetaUrban GitHub issue #18).
@@ -16,10 +19,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Sequence
 
 import numpy as np
+
+from vid2sim.envs.reward import TIMEOUT
+
+PINNED = "pinned"
 
 
 @dataclass(frozen=True)
@@ -36,6 +43,12 @@ class EpisodeRecord:
     start_pose: tuple[float, ...] = ()  # (x, y, yaw) at reset
     goal: tuple[float, ...] = ()  # (x, y)
     end_pose: tuple[float, ...] = ()  # (x, y, yaw) at the last step
+
+    @classmethod
+    def from_row(cls, row: dict) -> "EpisodeRecord":
+        """The record in one row of a saved evaluation report (other keys, e.g. scene_id, ignored)."""
+        names = {f.name for f in fields(cls)}
+        return cls(**{k: v for k, v in row.items() if k in names})
 
 
 def spl(e: EpisodeRecord) -> float:
@@ -74,3 +87,21 @@ def summarize(records: Sequence[EpisodeRecord]) -> Summary:
     return Summary(len(records), m(e.success for e in records), m(spl(e) for e in records),
                    m(e.collision_events for e in records), m(sns(e) for e in records),
                    m(sns_proximity(e) for e in records))
+
+
+def outcome(e: EpisodeRecord) -> str:
+    """How the episode ended: "success", the env's failure end, or for a time-out "pinned" when at
+    least half its steps were in contact (else "timeout")."""
+    if e.success:
+        return "success"
+    if e.end == TIMEOUT and 2 * e.collision_steps >= e.steps:
+        return PINNED
+    return e.end or "unknown"
+
+
+def outcomes(records: Sequence[EpisodeRecord]) -> dict[str, int]:
+    """Episodes per `outcome`, most frequent first."""
+    counts: dict[str, int] = {}
+    for e in records:
+        counts[outcome(e)] = counts.get(outcome(e), 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))

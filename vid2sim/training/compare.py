@@ -12,7 +12,7 @@ success the discordant pairs (episodes one policy wins and the other loses).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -20,7 +20,6 @@ from vid2sim.envs.metrics import EpisodeRecord
 from vid2sim.training.evaluate import EvalReport, Interval, bootstrap_means, episode_values
 
 SAME_EPISODES = ("registry", "seed", "obstacles", "pedestrians", "max_steps")  # EvalConfig fields
-RECORD_FIELDS = {f.name for f in fields(EpisodeRecord)}
 
 
 class UnpairedReports(ValueError):
@@ -47,7 +46,7 @@ def keyed_records(report: EvalReport) -> dict[tuple[str, int], EpisodeRecord]:
         scene = row["scene_id"]
         k = seen.get(scene, 0)
         seen[scene] = k + 1
-        out[(scene, k)] = EpisodeRecord(**{f: v for f, v in row.items() if f in RECORD_FIELDS})
+        out[(scene, k)] = EpisodeRecord.from_row(row)
     return out
 
 

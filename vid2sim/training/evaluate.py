@@ -30,7 +30,7 @@ import vid2sim.training.privileged  # noqa: F401  (registers the privileged-obse
 from vid2sim.envs.config import EnvConfig, EpisodeConfig
 from vid2sim.formats.episode_trace import read_trace, trace_path
 from vid2sim.envs.expert import PurePursuitExpert
-from vid2sim.envs.metrics import EpisodeRecord, sns, sns_proximity, spl
+from vid2sim.envs.metrics import EpisodeRecord, outcomes, sns, sns_proximity, spl
 from vid2sim.envs.obstacles import ObstacleConfig
 from vid2sim.envs.recording import RecordEpisode
 from vid2sim.ranges import checked
@@ -89,6 +89,10 @@ class EvalReport:
         data = json.loads(text)
         data["metrics"] = {k: Interval(**v) for k, v in data["metrics"].items()}
         return cls(**data)
+
+    def outcomes(self) -> dict[str, int]:
+        """Episodes per outcome (`envs/metrics.py` `outcome`: time-outs split into pinned and free)."""
+        return outcomes([EpisodeRecord.from_row(r) for r in self.records])
 
 
 # ------------------------------------------------------------------ policies
