@@ -103,7 +103,7 @@ def depth_blocks(depth: np.ndarray, grid: tuple[int, int]) -> np.ndarray:
 class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
-    def __init__(self, env: gym.Env, replan_distance: float = 0.3, clearance_rays: int = 0,
+    def __init__(self, env: gym.Env, replan_distance: float = 0.0, clearance_rays: int = 0,
                  depth_grid: Optional[tuple[int, int]] = None, lookahead: float = ExpertConfig.lookahead) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
