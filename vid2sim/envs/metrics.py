@@ -19,6 +19,7 @@
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, fields
 from typing import Sequence
 
@@ -101,7 +102,4 @@ def outcome(e: EpisodeRecord) -> str:
 
 def outcomes(records: Sequence[EpisodeRecord]) -> dict[str, int]:
     """Episodes per `outcome`, most frequent first."""
-    counts: dict[str, int] = {}
-    for e in records:
-        counts[outcome(e)] = counts.get(outcome(e), 0) + 1
-    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+    return dict(Counter(outcome(e) for e in records).most_common())
