@@ -100,10 +100,22 @@ def finished_budget(run_dir: Path, steps: int) -> Optional[dict]:
     return budget if budget and budget["env_steps"] >= steps and (run_dir / STUDENT_NAME).is_file() else None
 
 
+def check_same_scenes(run_dir: Path, scene_ids: Optional[list[str]]) -> None:
+    """SystemExit when the run folder's config.json says it trained on other scenes than
+    `scene_ids` (None or empty: the split's training side, not checked)."""
+    path = run_dir / "config.json"
+    saved = json.loads(path.read_text()).get("scene_ids") if path.is_file() else None
+    if scene_ids and saved and sorted(saved) != sorted(scene_ids):
+        raise SystemExit(f"{run_dir}: this run trained on {len(saved)} scenes ({', '.join(saved[:3])}, ...), "
+                         f"the call asks for a different set of {len(scene_ids)}; give the new run its own --tag")
+
+
 def train_or_reuse(config: TrainConfig, **extra) -> dict:
     """Train the distillation run `config` describes and write its budget (env steps, wall and CPU
-    seconds, seed, `extra`) to budget.json; a finished run of the same folder is reused."""
+    seconds, seed, `extra`) to budget.json; a finished run of the same folder is reused (a folder
+    that trained on other scenes is refused: `check_same_scenes`)."""
     run_dir = Path(config.run_dir)
+    check_same_scenes(run_dir, config.scene_ids)
     if (budget := finished_budget(run_dir, config.total_steps)) is not None:
         print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
         return budget
