@@ -259,16 +259,16 @@ def by_walk_direction(records: list[dict], registry: str, checkouts: Path) -> di
     """Episode successes grouped by where the episode runs against the filmed walk: the goal further
     along the walk than the start ("with the walk") or back toward its beginning ("against the
     walk"), and starts past either end of the walk (on ground the camera saw from afar)."""
-    walks: dict[str, np.ndarray] = {}
+    walks: dict[str, tuple[np.ndarray, float]] = {}  # scene -> (walk [K, 2], its length in m)
     groups: dict[str, list[bool]] = {}
     for r in records:
         if not r.get("start_pose"):  # a report written before records kept the poses
             continue
         if r["scene_id"] not in walks:
-            walks[r["scene_id"]] = walk_xy(registry, r["scene_id"], checkouts)
-        walk = walks[r["scene_id"]]
+            xy = walk_xy(registry, r["scene_id"], checkouts)
+            walks[r["scene_id"]] = xy, float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+        walk, total = walks[r["scene_id"]]
         s0, s1 = along_walk(walk, r["start_pose"][:2]), along_walk(walk, r["goal"])
-        total = float(np.linalg.norm(np.diff(walk, axis=0), axis=1).sum())  # the walk's length, m
         groups.setdefault("with the walk" if s1 > s0 else "against the walk", []).append(r["success"])
         past = s0 < -0.5 or s0 > total + 0.5
         groups.setdefault("starting past an end of the walk" if past else "starting along the walk",

@@ -1,6 +1,6 @@
 """Reward terms and metrics on hand-worked steps and episodes (no scene needed)."""
 
-from dataclasses import asdict
+from dataclasses import asdict, replace
 
 import pytest
 
@@ -79,8 +79,6 @@ def test_summary_hand_worked():
 
 
 def test_outcomes_split_time_outs_into_pinned_and_free():
-    from dataclasses import replace
-
     pinned = replace(ep(False, 10.0, 1.0, events=1, coll_steps=300, steps=600), end="timeout")
     free = replace(ep(False, 10.0, 30.0, events=2, coll_steps=299, steps=600), end="timeout")
     off = replace(ep(False, 10.0, 4.0, steps=40), end="left_walkable")
