@@ -13,7 +13,7 @@ from stable_baselines3.common.monitor import Monitor
 from typer.testing import CliRunner
 
 from vid2sim.cli.app import app
-from vid2sim.envs.metrics import EpisodeRecord
+from vid2sim.envs.metrics import EpisodeRecord, outcomes
 from vid2sim.envs.physics import RobotState
 from vid2sim.formats.episode_trace import read_trace
 from vid2sim.training.config import SACConfig, TrainConfig
@@ -102,8 +102,9 @@ def test_eval_record_writes_one_mp4_per_recorded_trial(street_registry, tmp_path
                                    "--privileged", "--out", str(tmp_path / "report.json")])
     assert res.exit_code == 0, res.output
     report = json.loads((tmp_path / "report.json").read_text())
-    ends = "success" if report["records"][0]["success"] else ""
-    assert f"outcomes: {ends}" in res.output  # how the episodes ended, printed below the metrics
+    ends = outcomes([EpisodeRecord.from_row(r) for r in report["records"]])  # from the saved records
+    assert sum(ends.values()) == 2  # how the two episodes ended, printed below the metrics:
+    assert "outcomes: " + ", ".join(f"{k} {n}" for k, n in ends.items()) in res.output
     # the video, and beside it the episode's trace (poses, contacts, what the map shows)
     assert sorted(p.name for p in out.iterdir()) == [f"{SCENE}-trial0.mp4", f"{SCENE}-trial0.trace.json"]
     assert report["videos"] == [str(out / f"{SCENE}-trial0.mp4")]
