@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
 import time
 from dataclasses import asdict, replace
@@ -110,20 +112,62 @@ def check_same_scenes(run_dir: Path, scene_ids: Optional[list[str]]) -> None:
                          f"the call asks for a different set of {len(scene_ids)}; give the new run its own --tag")
 
 
-def train_or_reuse(config: TrainConfig, **extra) -> dict:
+def training_settings(config: TrainConfig) -> dict:
+    """The run's settings as JSON values, without its folder and env-step budget."""
+    return json.loads(json.dumps({k: v for k, v in config.to_dict().items() if k not in ("run_dir", "total_steps")}))
+
+
+def start_from_shorter_run(config: TrainConfig, source: Path) -> dict:
+    """Start the run folder of `config` as a copy of the finished shorter run `source` (its config,
+    checkpoint, TensorBoard log and data shards, the shards hard-linked: they are written once; not
+    its evaluation reports, budget or final student), so that a resumed `train_distill` goes on at
+    its next round -> the source's budget. SystemExit when `source` is not a finished run with a
+    checkpoint, already has the steps asked for, or was trained with other settings (anything but
+    the run folder and the env-step budget)."""
+    budget = finished_budget(source, 1)
+    if budget is None or not (source / "checkpoints" / "last.pt").is_file():
+        raise SystemExit(f"{source}: not a finished run with a checkpoint (budget.json, student.pt, "
+                         f"checkpoints/last.pt) to go on from")
+    if budget["env_steps"] >= config.total_steps:
+        raise SystemExit(f"{source}: already has {budget['env_steps']} env steps, the call asks for "
+                         f"{config.total_steps}")
+    saved, asked = training_settings(TrainConfig.load(source / "config.json")), training_settings(config)
+    if differ := sorted(k for k in asked if saved.get(k) != asked[k]):
+        raise SystemExit(f"{source}: trained with other settings ({', '.join(differ)}); cannot go on from it")
+    run_dir = Path(config.run_dir)
+    shutil.copytree(source, run_dir, ignore=shutil.ignore_patterns("data", "eval_*.json", "budget.json",
+                                                                   STUDENT_NAME))
+    (run_dir / "data").mkdir()
+    for shard in sorted((source / "data").glob("round_*.npz")):
+        os.link(shard, run_dir / "data" / shard.name)
+    return budget
+
+
+def train_or_reuse(config: TrainConfig, start_from: Optional[Path] = None, **extra) -> dict:
     """Train the distillation run `config` describes and write its budget (env steps, wall and CPU
     seconds, seed, `extra`) to budget.json; a finished run of the same folder is reused (a folder
-    that trained on other scenes is refused: `check_same_scenes`)."""
+    that trained on other scenes is refused: `check_same_scenes`). `start_from`: a finished shorter
+    run of the same settings that a new folder goes on from (`start_from_shorter_run`; its wall and
+    CPU seconds are counted in the budget)."""
     run_dir = Path(config.run_dir)
     check_same_scenes(run_dir, config.scene_ids)
     if (budget := finished_budget(run_dir, config.total_steps)) is not None:
         print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
         return budget
+    before = {"train_wall_s": 0, "train_cpu_s": 0}
+    if start_from is not None and not (run_dir / "checkpoints" / "last.pt").is_file():
+        before = start_from_shorter_run(config, start_from)
+        extra["started_from"] = {"run": str(start_from), "env_steps": before["env_steps"]}
+        print(f"going on from {start_from} ({before['env_steps']} env steps)", flush=True)
+    elif start_from is not None:
+        raise SystemExit(f"{run_dir}: an unfinished run is already there; remove it to start from {start_from}")
     t0, cpu0 = time.perf_counter(), cpu_seconds()
-    result = train_distill(config, log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
-                                                                     for k, v in row.items()}), flush=True))
-    budget = {"env_steps": result.num_timesteps, "train_wall_s": round(time.perf_counter() - t0),
-              "train_cpu_s": round(cpu_seconds() - cpu0), "seed": config.seed, **extra}
+    result = train_distill(config, resume=start_from is not None,
+                           log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v
+                                                             for k, v in row.items()}), flush=True))
+    budget = {"env_steps": result.num_timesteps,
+              "train_wall_s": before["train_wall_s"] + round(time.perf_counter() - t0),
+              "train_cpu_s": before["train_cpu_s"] + round(cpu_seconds() - cpu0), "seed": config.seed, **extra}
     (run_dir / "budget.json").write_text(json.dumps(budget))
     return budget
 

@@ -27,6 +27,8 @@ either end of the walk, on ground the camera saw only from afar), from the recor
 and goals and the scenes' camera paths.
 Every stage is resumable:
 finished renders, reconstructions, trainings and evaluations of the same protocol are reused.
+A longer training can go on from a finished shorter one of the same recipe (`--start-from-steps`):
+its new folder starts with the shorter run's data and checkpoint, and its budget counts both parts.
 """
 
 from __future__ import annotations
@@ -142,7 +144,8 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
                          distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror))
-    return run_dir, train_or_reuse(config, scenes=scene_ids)
+    shorter = args.root / "sim2real" / f"{name}_{args.start_from_steps}_s{args.seed}{args.tag}"
+    return run_dir, train_or_reuse(config, start_from=shorter if args.start_from_steps else None, scenes=scene_ids)
 
 
 @dataclass(frozen=True)
@@ -285,6 +288,9 @@ def main() -> None:
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--steps", type=int, default=64_000, help="env steps per training")
+    ap.add_argument("--start-from-steps", type=int, default=0,
+                    help="go on from the finished run of this many env steps (same variant, seed and tag) "
+                         "instead of training from scratch; its seconds count in the budget")
     ap.add_argument("--envs", type=int, default=8)
     ap.add_argument("--teacher-replan", type=float, default=DistillConfig.teacher_replan,
                     help="m off its path at which the teacher re-plans (0: at every state)")
