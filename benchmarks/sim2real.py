@@ -52,6 +52,7 @@ from street_registry import build
 from vid2sim.registry import Registry, RegistryNotFound
 from vid2sim.training.config import DistillConfig, TrainConfig
 from vid2sim.training.evaluate import EvalConfig
+from vid2sim.training.student import StudentConfig
 
 VARIANTS = ("splat", "mesh-rgb", "gt")
 
@@ -143,7 +144,8 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          n_actors=0, seed=args.seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
-                         distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror))
+                         distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror,
+                                         student=replace(StudentConfig(), channels=tuple(args.channels))))
     shorter = args.root / "sim2real" / f"{name}_{args.start_from_steps}_s{args.seed}{args.tag}"
     return run_dir, train_or_reuse(config, start_from=shorter if args.start_from_steps else None, scenes=scene_ids)
 
@@ -296,6 +298,8 @@ def main() -> None:
                     help="m off its path at which the teacher re-plans (0: at every state)")
     ap.add_argument("--mirror", type=float, default=DistillConfig.mirror,
                     help="probability that a learner sample is seen in a mirror (flipped frames, negated steering)")
+    ap.add_argument("--channels", type=int, nargs=4, default=list(StudentConfig.channels), metavar="C",
+                    help="student: the four conv widths of its frame encoder")
     ap.add_argument("--trials", type=int, default=10, help="episodes per held-out GT street")
     ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
     ap.add_argument("--mesh-world-trials", type=int, default=0,
