@@ -89,8 +89,8 @@ def record_eval(run: Run, case: str, rep: EvalReport, budget: dict, metrics=("sr
     for k in metrics:
         m = rep.metrics[k]
         row[k] = [round(m.mean, 3), round(m.low, 3), round(m.high, 3)]
-        run.record(case, k, m.mean, "", {"ci95": [m.low, m.high], "episodes": rep.episodes, "outcomes": ends,
-                                         **budget})
+        success = {"outcomes": ends} if k == "sr" else {}  # kept once, with the success rate
+        run.record(case, k, m.mean, "", {"ci95": [m.low, m.high], "episodes": rep.episodes, **success, **budget})
     print(json.dumps({"case": case, "episodes": rep.episodes, **row, "outcomes": ends, **budget}), flush=True)
     return row
 
