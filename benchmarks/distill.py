@@ -135,11 +135,14 @@ def start_from_shorter_run(config: TrainConfig, source: Path) -> dict:
     if differ := sorted(k for k in asked if saved.get(k) != asked[k]):
         raise SystemExit(f"{source}: trained with other settings ({', '.join(differ)}); cannot go on from it")
     run_dir = Path(config.run_dir)
-    shutil.copytree(source, run_dir, ignore=shutil.ignore_patterns("data", "eval_*.json", "budget.json",
+    partial = run_dir.with_name(run_dir.name + ".partial")  # renamed into place once complete
+    shutil.rmtree(partial, ignore_errors=True)
+    shutil.copytree(source, partial, ignore=shutil.ignore_patterns("data", "eval_*.json", "budget.json",
                                                                    STUDENT_NAME))
-    (run_dir / "data").mkdir()
+    (partial / "data").mkdir()
     for shard in sorted((source / "data").glob("round_*.npz")):
-        os.link(shard, run_dir / "data" / shard.name)
+        os.link(shard, partial / "data" / shard.name)
+    partial.rename(run_dir)
     return budget
 
 
@@ -155,12 +158,12 @@ def train_or_reuse(config: TrainConfig, start_from: Optional[Path] = None, **ext
         print(f"reusing {run_dir} (finished, {budget['env_steps']} env steps)", flush=True)
         return budget
     before = {"train_wall_s": 0, "train_cpu_s": 0}
-    if start_from is not None and not (run_dir / "checkpoints" / "last.pt").is_file():
+    if start_from is not None:
+        if run_dir.exists():
+            raise SystemExit(f"{run_dir}: an unfinished run is already there; remove it to start from {start_from}")
         before = start_from_shorter_run(config, start_from)
         extra["started_from"] = {"run": str(start_from), "env_steps": before["env_steps"]}
         print(f"going on from {start_from} ({before['env_steps']} env steps)", flush=True)
-    elif start_from is not None:
-        raise SystemExit(f"{run_dir}: an unfinished run is already there; remove it to start from {start_from}")
     t0, cpu0 = time.perf_counter(), cpu_seconds()
     result = train_distill(config, resume=start_from is not None,
                            log=lambda row: print(json.dumps({k: round(v, 3) if isinstance(v, float) else v

@@ -1,4 +1,5 @@
-"""benchmarks/distill.py reuses (or resumes) a run folder only for the scenes it trained on."""
+"""benchmarks/distill.py reuses a run folder only for the scenes it trained on, and goes on from a
+finished shorter run only of the same settings."""
 
 from __future__ import annotations
 
@@ -58,3 +59,7 @@ def test_a_longer_run_goes_on_from_a_finished_shorter_one_and_counts_both_budget
         distill_bench.train_or_reuse(replace(config, run_dir=str(tmp_path / "again")), start_from=source)
     with pytest.raises(SystemExit, match="not a finished run"):
         distill_bench.train_or_reuse(replace(longer, run_dir=str(tmp_path / "x")), start_from=tmp_path / "none")
+    (tmp_path / "interrupted").mkdir()
+    with pytest.raises(SystemExit, match="an unfinished run is already there"):
+        distill_bench.train_or_reuse(replace(longer, run_dir=str(tmp_path / "interrupted")), start_from=source)
+    assert not list(tmp_path.glob("*.partial"))
