@@ -28,16 +28,10 @@ def test_a_longer_run_goes_on_from_a_finished_shorter_one_and_counts_both_budget
     from dataclasses import replace
 
     from benchmarks.street_registry import build
-    from vid2sim.training.config import DistillConfig, TrainConfig
-    from vid2sim.training.student import StudentConfig
+    from tests.test_training_distill import tiny_config
 
     registry = build(tmp_path / "streets", [1, 2]).root
-    tiny = StudentConfig(frames=2, pool=2, channels=(4, 4, 8, 8), frame_dim=16, vector_dim=8, hidden=16)
-    config = TrainConfig(run_dir=str(tmp_path / "run_120"), total_steps=120, registry=str(registry), n_envs=2,
-                         n_actors=0, seed=3, method="distill", stuck_steps=10,
-                         env_kwargs={"training": True, "fidelity": "exact"},
-                         distill=DistillConfig(steps_per_round=60, updates_per_round=4, batch_size=8,
-                                               train_max_steps=40, student=tiny))
+    config = tiny_config(registry, tmp_path / "run_120", 120)
     short = distill_bench.train_or_reuse(config)
     source = tmp_path / "run_120"
     (source / "eval_gt_splat_held-out.json").write_text("{}")  # an evaluation report stays behind
