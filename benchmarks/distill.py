@@ -80,6 +80,7 @@ def distill_config(args) -> DistillConfig:
                    teacher_comfort=args.teacher_comfort, teacher_replan=args.teacher_replan,
                    teacher_lookahead=args.teacher_lookahead, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
+                   hard_fraction=args.hard_fraction, hard_steps=args.hard_steps,
                    depth_weight=args.depth_weight, ema_decay=args.ema_decay, augment=args.augment,
                    student=student)
 
@@ -368,6 +369,10 @@ def main() -> None:
                     help="student: steering as a distribution over K values (0: regressed)")
     ap.add_argument("--steer-weight", type=float, default=DistillConfig.steer_weight,
                     help="a label counts 1 + this x |its steering| in the action loss")
+    ap.add_argument("--hard-fraction", type=float, default=DistillConfig.hard_fraction,
+                    help="share of each learner batch drawn from the states before a contact (0: uniform)")
+    ap.add_argument("--hard-steps", type=int, default=DistillConfig.hard_steps,
+                    help="states before a contact's onset flagged hard")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,
                     help="weight of the auxiliary clearance loss")
     ap.add_argument("--augment", action=argparse.BooleanOptionalAction, default=DistillConfig.augment,

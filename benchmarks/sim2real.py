@@ -145,6 +145,7 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                          env_kwargs={"training": True, "variant": variant, "fidelity": "exact",
                                      "checkout_root": str(args.root / "checkouts")},
                          distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror,
+                                         hard_fraction=args.hard_fraction, hard_steps=args.hard_steps,
                                          student=replace(StudentConfig(), channels=tuple(args.channels))))
     shorter = args.root / "sim2real" / f"{name}_{args.start_from_steps}_s{args.seed}{args.tag}"
     return run_dir, train_or_reuse(config, start_from=shorter if args.start_from_steps else None, scenes=scene_ids)
@@ -300,6 +301,10 @@ def main() -> None:
                     help="probability that a learner sample is seen in a mirror (flipped frames, negated steering)")
     ap.add_argument("--channels", type=int, nargs=4, default=list(StudentConfig.channels), metavar="C",
                     help="student: the four conv widths of its frame encoder")
+    ap.add_argument("--hard-fraction", type=float, default=DistillConfig.hard_fraction,
+                    help="share of each learner batch drawn from the states before a contact (0: uniform)")
+    ap.add_argument("--hard-steps", type=int, default=DistillConfig.hard_steps,
+                    help="states before a contact's onset flagged hard")
     ap.add_argument("--trials", type=int, default=10, help="episodes per held-out GT street")
     ap.add_argument("--train-trials", type=int, default=5, help="episodes per training street's GT world (0: none)")
     ap.add_argument("--mesh-world-trials", type=int, default=0,

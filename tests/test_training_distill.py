@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import ray
 import torch
+from stable_baselines3.common.vec_env import VecEnvWrapper
 
 from tests.conftest import PROJECT_ROOT
 from vid2sim.ranges import RangeError
@@ -595,3 +596,92 @@ def test_mirrored_samples_teach_the_mirrored_turn():
         views = torch.from_numpy(np.stack([left[0], left[0, ..., ::-1]])).float()
         steering = student.act(views, torch.zeros(2, 6, 2))[:, 1].numpy()
     assert steering[0] > 0.5 and steering[1] < -0.5
+
+
+class InfoLog(VecEnvWrapper):
+    """Passes a VecEnv through and keeps each step's `collided` flags and dones [n_envs]."""
+
+    def __init__(self, venv):
+        super().__init__(venv)
+        self.collided, self.dones = [], []
+
+    def reset(self):
+        return self.venv.reset()
+
+    @property
+    def reset_infos(self):  # the wrapped env's (the teacher's labels of each new episode)
+        return self.venv.reset_infos
+
+    @reset_infos.setter
+    def reset_infos(self, value):  # VecEnv.__init__ sets its own; the wrapped env's are read
+        pass
+
+    def step_wait(self):
+        obs, rewards, dones, infos = self.venv.step_wait()
+        self.collided.append(np.array([bool(i.get("collided", False)) for i in infos]))
+        self.dones.append(dones.copy())
+        return obs, rewards, dones, infos
+
+
+def expected_hard_flags(collided: list, dones: list, hard_steps: int) -> np.ndarray:
+    """[T, n_envs] the states of the `hard_steps` steps (of the same episode) before each contact's onset."""
+    c, d = np.array(collided), np.array(dones)
+    flags, start, before = np.zeros_like(c), np.zeros(c.shape[1], int), np.zeros(c.shape[1], bool)
+    for t in range(len(c)):
+        for i in range(c.shape[1]):
+            if c[t, i] and not before[i]:
+                flags[max(start[i], t + 1 - hard_steps):t + 1, i] = True
+            before[i] = c[t, i] and not d[t, i]
+            if d[t, i]:
+                start[i] = t + 1
+    return flags
+
+
+def test_collection_flags_the_states_before_each_contact(street_registry, tmp_path):
+    from vid2sim.training.distill import Collector
+    from vid2sim.training.sac import make_vec_env
+    config = tiny_config(street_registry, tmp_path / "run", 200)
+    from vid2sim.training.sac import resolve_scenes
+    config.scene_ids = resolve_scenes(config)
+    env = InfoLog(make_vec_env(env_specs(config), 0))
+    torch.manual_seed(0)
+    student = StudentPolicy(TINY, (6, 3, 72, 128), (6, 2)).eval()
+    with torch.no_grad():  # drives straight on at full speed whatever it sees, so it runs into things
+        student.head[-1].weight.zero_()
+        student.head[-1].bias.copy_(torch.tensor([5.0, 0.0]))
+    try:
+        batch, stats = Collector(env, student, 0).collect(400, beta_k=0.0, drop_stuck=False, hard_steps=4)
+    finally:
+        env.close()
+    flags = expected_hard_flags(env.collided, env.dones, 4)  # [200, 2]
+    assert flags.any() and not flags.all()  # the straight drives touched something, not from the start
+    np.testing.assert_array_equal(batch.hard, flags.reshape(-1))  # rows are step-major, envs within a step
+    assert stats.hard == int(flags.sum())
+
+
+def test_a_hard_fraction_of_each_batch_comes_from_the_flagged_states():
+    n = 200
+    frames = np.zeros((n, 2, 3, 4, 4), np.uint8)  # what the student below reads (8 x 8 frames pooled by 2)
+    hard = np.zeros(n, bool)
+    hard[[5, 77, 150]] = True
+    data = Dataset(max_samples=n)
+    data.add(Batch(frames, np.zeros((n, 6, 2), np.float32), np.zeros((n, 2), np.float32), hard=hard))
+    np.testing.assert_array_equal(data.hard_rows(), [5, 77, 150])
+    seen = []
+
+    class Recording(Dataset):
+        def gather(self, idx):
+            seen.append(np.asarray(idx))
+            return super().gather(idx)
+    rec = Recording(max_samples=n)
+    rec.parts, rec.seen = data.parts, data.seen
+    student = StudentPolicy(TINY, (6, 3, 8, 8), (6, 2))
+    optimizer = make_optimizer(student, DistillConfig())
+    fit(student, optimizer, rec, fit_conf(20, 16, hard_fraction=0.25), np.random.default_rng(0))
+    drawn = np.concatenate([s[-4:] for s in seen])  # the last quarter of each batch: the flagged states
+    assert set(drawn.tolist()) <= {5, 77, 150} and len(set(drawn.tolist())) == 3
+    seen.clear()
+    fit(student, optimizer, rec, fit_conf(20, 16), np.random.default_rng(0))  # 0: uniform batches
+    assert np.isin(np.concatenate(seen), [5, 77, 150]).mean() < 0.1
+    old = Batch(frames, np.zeros((n, 6, 2), np.float32), np.zeros((n, 2), np.float32))
+    assert not old.hard.any()  # shards written before the flags read as none flagged

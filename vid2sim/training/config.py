@@ -77,6 +77,10 @@ class DistillConfig:
     # goal's heading negated; training/distill.py `Batch.mirrored`); 0: off. 0.5: held-out SR 0.832 against
     # 0.792 without at 128k env steps, 3 seeds, every seed ahead (docs/studies/pixel_distillation.md)
     mirror: float = 0.5
+    # states before a contact's onset (in collection, whoever drives) flagged hard in the round's data (0: none)
+    hard_steps: int = 10
+    # share of each learner batch drawn from the flagged states (0: uniform batches, the recipe at the bar)
+    hard_fraction: float = 0.0
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
     drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)

@@ -14,9 +14,11 @@ does, in order:
   3. for each round k: collect `steps_per_round` env steps; each episode is driven by the
      teacher with probability beta_k = max(min_beta, beta0 * beta_decay^k), else by the student
      (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
-     the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`);
+     the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`); the states
+     of the `hard_steps` steps before each contact's onset are flagged hard;
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
-     labels (optionally weighted towards hard turns, `steer_weight`), on batches with random-shift
+     labels (optionally weighted towards hard turns, `steer_weight`, or with a share of each batch
+     drawn from the states that led into a contact, `hard_fraction`), on batches with random-shift
      augmentation (DrQ) and optionally mirrored samples (`mirror`: the flipped frames with the
      steering and the goal's heading negated), warm-started from the last round;
      a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
@@ -76,31 +78,37 @@ class Batch:
     actions: np.ndarray  # float32 [N, 2]
     clearance: Optional[np.ndarray] = None  # float32 [N, K] in [0, 1]; [N, 0] without the target
     depth: Optional[np.ndarray] = None  # uint8 [N, 9, 16] nearest depth / 5 m x 255; [N, 0, 0] without
+    # bool [N]: the state is one of the `DistillConfig.hard_steps` states before a contact began (the
+    # learner draws `hard_fraction` of each batch from these); all False in shards written before it
+    hard: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         if self.clearance is None:
             self.clearance = np.zeros((len(self.actions), 0), np.float32)
         if self.depth is None:
             self.depth = np.zeros((len(self.actions), 0, 0), np.uint8)
+        if self.hard is None:
+            self.hard = np.zeros(len(self.actions), bool)
 
     def save(self, path: Path) -> None:
         np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance,
-                 depth=self.depth)
+                 depth=self.depth, hard=self.hard)
 
     @classmethod
     def load(cls, path: Path) -> "Batch":
-        with np.load(path) as z:  # shards written before the auxiliary targets have none
-            return cls(z["frames"], z["vectors"], z["actions"], z["clearance"] if "clearance" in z else None,
-                       z["depth"] if "depth" in z else None)
+        with np.load(path) as z:  # shards written before the auxiliary targets and the hard flags have none
+            return cls(z["frames"], z["vectors"], z["actions"], *(z[k] if k in z else None
+                                                                  for k in ("clearance", "depth", "hard")))
 
     def take(self, idx: np.ndarray) -> "Batch":
         """Rows idx of every field."""
-        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx])
+        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx],
+                     self.hard[idx])
 
     def mirrored(self, rows: np.ndarray) -> "Batch":
         """A copy in which the states `rows` (bool [N]) are seen in a mirror (`mirror_rows`)."""
         out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
-                    self.depth.copy())
+                    self.depth.copy(), self.hard.copy())
         return out.mirror_rows(rows)
 
     def mirror_rows(self, rows: np.ndarray) -> "Batch":
@@ -164,7 +172,7 @@ class Dataset:
         part = np.searchsorted(starts, rows, side="right") - 1  # [B]
         first = self.parts[0]
         out = Batch(*(np.empty((len(rows), *a.shape[1:]), a.dtype)
-                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth)))
+                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth, first.hard)))
         for j in np.unique(part):
             hit = part == j
             local = rows[hit] - starts[j]
@@ -177,8 +185,15 @@ class Dataset:
                                    f"{out.depth.shape[1:]} cannot be mixed")
             out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
             out.actions[hit], out.clearance[hit] = src.actions[local], src.clearance[local]
-            out.depth[hit] = src.depth[local]
+            out.depth[hit], out.hard[hit] = src.depth[local], src.hard[local]
         return out
+
+    def hard_rows(self) -> np.ndarray:
+        """Indices [H] (into 0 .. rows()) of the sampled states flagged hard (`Batch.hard`)."""
+        if not self.parts:
+            return np.zeros(0, np.int64)
+        flags = np.concatenate([p.hard for p in self.parts])[len(self) - self.rows():]  # [rows()]
+        return np.flatnonzero(flags)
 
     def arrays(self) -> Batch:
         """The whole sampled range as one Batch (a copy; for inspection and tests)."""
@@ -244,6 +259,7 @@ class RoundStats:
     steps: int = 0
     labels: int = 0
     dropped_stuck: int = 0
+    hard: int = 0  # labelled states flagged hard (before a contact began)
     episodes: dict[str, list[bool]] = field(default_factory=lambda: {"teacher": [], "student": []})
     wall_s: float = 0.0
 
@@ -262,18 +278,24 @@ class Collector:
         self.obs = env.reset()
         self.labels = [dict(info) for info in env.reset_infos]
         self.teacher_drives = np.ones(env.num_envs, bool)
+        self.episode_steps = np.zeros(env.num_envs, np.int64)  # steps of each env's current episode so far
+        self.in_contact = np.zeros(env.num_envs, bool)  # the env's last step ended in contact
 
     def _check_labels(self) -> None:
         missing = [i for i, info in enumerate(self.labels) if "teacher_action" not in info]
         if missing:
             raise DistillError(f"teacher_unavailable: envs {missing} returned no teacher label")
 
-    def collect(self, n_steps: int, beta_k: float, drop_stuck: bool) -> tuple[Batch, RoundStats]:
+    def collect(self, n_steps: int, beta_k: float, drop_stuck: bool,
+                hard_steps: int = 0) -> tuple[Batch, RoundStats]:
+        """`n_steps` env steps (all envs together) -> their labelled states and the round's figures; with
+        `hard_steps` > 0 the states of the last `hard_steps` steps (of this round and episode) before each
+        contact's onset are flagged hard (`Batch.hard`)."""
         stats, t0 = RoundStats(), time.perf_counter()
         self._check_labels()
         self.teacher_drives = self.rng.random(self.env.num_envs) < beta_k  # a new round redraws the drivers
-        frames, vectors, actions, clearance, depth = [], [], [], [], []
-        for _ in range(max(1, n_steps // self.env.num_envs)):
+        frames, vectors, actions, clearance, depth, keeps, hard = [], [], [], [], [], [], []
+        for t in range(max(1, n_steps // self.env.num_envs)):
             teacher = np.stack([np.asarray(info["teacher_action"], np.float32) for info in self.labels])
             seen = np.stack([np.asarray(info.get("teacher_clearance", ()), np.float32) for info in self.labels])
             near = np.stack([np.asarray(info.get("teacher_depth", np.zeros((0, 0))), np.uint8) for info in self.labels])
@@ -289,11 +311,21 @@ class Collector:
             clearance.append(seen[keep])  # [n, K]; [n, 0] without the target
             depth.append(near[keep])  # [n, 9, 16]; [n, 0, 0] without the target
             stats.dropped_stuck += int((~keep).sum())
+            keeps.append(keep)
+            hard.append(np.zeros(self.env.num_envs, bool))  # [n_envs], set back in time below
             act = np.where(self.teacher_drives[:, None], teacher, student).astype(np.float32)
             self.obs, _, dones, infos = self.env.step(act)
             stats.steps += self.env.num_envs
+            self.episode_steps += 1
             for i, info in enumerate(infos):
+                contact = bool(info.get("collided", False))
+                if hard_steps > 0 and contact and not self.in_contact[i]:  # this step's state led into a contact
+                    back = int(min(hard_steps, self.episode_steps[i], t + 1))
+                    for step_flags in hard[t + 1 - back:t + 1]:
+                        step_flags[i] = True
+                self.in_contact[i] = contact and not dones[i]
                 if dones[i]:
+                    self.episode_steps[i] = 0
                     driver = "teacher" if self.teacher_drives[i] else "student"
                     stats.episodes[driver].append(info.get("end") == "success")
                     self.teacher_drives[i] = self.rng.random() < beta_k
@@ -301,8 +333,9 @@ class Collector:
                 else:
                     self.labels[i] = info
             self._check_labels()
-        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance, depth)))
-        stats.labels, stats.wall_s = len(batch.actions), time.perf_counter() - t0
+        flags = np.concatenate([h[k] for h, k in zip(hard, keeps)])  # [N] the kept states' flags
+        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance, depth)), flags)
+        stats.labels, stats.hard, stats.wall_s = len(batch.actions), int(flags.sum()), time.perf_counter() - t0
         return batch, stats
 
 
@@ -330,7 +363,9 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
         conf: DistillConfig, rng: np.random.Generator, averaged: Optional[AveragedModel] = None) -> dict[str, float]:
     """`conf.updates_per_round` AdamW steps of `action_loss` to the teacher's labels on batches of
     `conf.batch_size`, random-shifted by `conf.shift_pad`, drawn uniformly from `data` (a Dataset,
-    sampled in place, or one Batch), each sample seen in a mirror with probability `conf.mirror`
+    sampled in place, or one Batch; with `conf.hard_fraction` > 0 that share of each batch is drawn
+    from the states flagged hard, `Batch.hard`, where there are any), each sample seen in a mirror
+    with probability `conf.mirror`
     (`Batch.mirrored`); a student with a clearance head also regresses the teacher's
     clearance readings, that loss weighted by `conf.clearance_weight`, and one with a depth head the
     frame's blocked depth (`depth_loss`), weighted by `conf.depth_weight`; `conf.steer_weight`: see
@@ -344,9 +379,14 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     aux = student.clearance_head is not None and conf.clearance_weight > 0
     with_depth = student.depth_head is not None and conf.depth_weight > 0
     n, losses, aux_losses, depth_losses, t0 = data.rows(), [], [], [], time.perf_counter()
+    hard = data.hard_rows() if conf.hard_fraction > 0 else np.zeros(0, np.int64)  # [H]
+    n_hard = int(round(conf.hard_fraction * batch_size)) if len(hard) else 0
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
     for _ in range(updates):
-        batch = data.gather(rng.integers(0, n, batch_size))
+        picks = rng.integers(0, n, batch_size - n_hard)  # [B - n_hard] uniform
+        if n_hard:
+            picks = np.concatenate([picks, hard[rng.integers(0, len(hard), n_hard)]])  # [B]
+        batch = data.gather(picks)
         if conf.mirror > 0:  # the gathered batch is a fresh copy: mirrored in place
             batch.mirror_rows(rng.random(batch_size) < conf.mirror)
         x = random_shift(torch.from_numpy(batch.frames).float(), conf.shift_pad, gen)
@@ -500,13 +540,14 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
         t_start = time.perf_counter()
         for k in range(start, rounds):
             beta_k = beta(config, k)
-            batch, stats = collector.collect(d.steps_per_round, beta_k, d.drop_stuck)
+            batch, stats = collector.collect(d.steps_per_round, beta_k, d.drop_stuck, d.hard_steps)
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
             fitted = fit(student, optimizer, dataset, d, rng, averaged)
             row = {"round": k, "beta": beta_k, "env_steps": done, "labels": stats.labels, "dataset": len(dataset),
-                   "dropped_stuck": stats.dropped_stuck, "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
+                   "dropped_stuck": stats.dropped_stuck, "hard_labels": stats.hard,
+                   "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
                    "student_episodes": len(stats.episodes["student"]), **fitted}
             history.append(row)
