@@ -146,7 +146,8 @@ def train_student(args, name: str, registry: str, scene_ids: list[str]) -> tuple
                                      "checkout_root": str(args.root / "checkouts")},
                          distill=replace(DistillConfig(), teacher_replan=args.teacher_replan, mirror=args.mirror,
                                          hard_fraction=args.hard_fraction, hard_steps=args.hard_steps,
-                                         student=replace(StudentConfig(), channels=tuple(args.channels))))
+                                         student=replace(StudentConfig(), channels=tuple(args.channels),
+                                                         frames=args.frames, frame_stride=args.frame_stride)))
     shorter = args.root / "sim2real" / f"{name}_{args.start_from_steps}_s{args.seed}{args.tag}"
     return run_dir, train_or_reuse(config, start_from=shorter if args.start_from_steps else None, scenes=scene_ids)
 
@@ -301,6 +302,9 @@ def main() -> None:
                     help="probability that a learner sample is seen in a mirror (flipped frames, negated steering)")
     ap.add_argument("--channels", type=int, nargs=4, default=list(StudentConfig.channels), metavar="C",
                     help="student: the four conv widths of its frame encoder")
+    ap.add_argument("--frames", type=int, default=StudentConfig.frames, help="student: stacked frames it looks at")
+    ap.add_argument("--frame-stride", type=int, default=StudentConfig.frame_stride,
+                    help="student: every k-th stacked frame back from the latest (5 with 2 frames: t-5, t)")
     ap.add_argument("--hard-fraction", type=float, default=DistillConfig.hard_fraction,
                     help="share of each learner batch drawn from the states before a contact (0: uniform)")
     ap.add_argument("--hard-steps", type=int, default=DistillConfig.hard_steps,
