@@ -47,7 +47,8 @@ the script), status ("ok", or "failed: ..." when the block raised: the renderer 
 started_utc / started_unix / finished_utc / duration_s, command (shell-quoted, python
 relative to the repo), argv, cwd, args (the argparse namespace), config (`run.config`, free-form), env (the
 VID2SIM_* / OMP_* / NUMBA_* / CUDA_VISIBLE_DEVICES variables set), hardware (cpu_model,
-cores, memory_gib, gpu or null, platform), load (the 1/5/15-min loadavg at start and end),
+cpu_id (vendor, family, model), simd (the widest vector set), cores, memory_gib, gpu or null,
+platform), load (the 1/5/15-min loadavg at start and end),
 git (commit, dirty, branch), versions (python and each of numpy, torch, ray, pycolmap,
 open3d, pybullet, gymnasium, stable-baselines3, numba, deltalake that is installed), notes
 (skips and remarks) and rows.
@@ -97,6 +98,41 @@ def cpu_model() -> str:
     return platform.processor() or platform.machine() or "unknown CPU"
 
 
+def _cpuinfo_fields() -> dict:
+    """The first processor's `key: value` lines of /proc/cpuinfo ({} where there is none)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return {}
+    out: dict = {}
+    for line in text.splitlines():
+        if not line.strip():
+            break
+        key, _, value = line.partition(":")
+        out[key.strip()] = value.strip()
+    return out
+
+
+def cpu_id() -> Optional[str]:
+    """Vendor, family and model numbers (e.g. "AuthenticAMD family 25 model 1"): a virtual
+    machine's model name is often only "AMD EPYC", which hides the core generation."""
+    f = _cpuinfo_fields()
+    if "cpu family" not in f:
+        return None
+    return f"{f.get('vendor_id', '?')} family {f['cpu family']} model {f.get('model', '?')}"
+
+
+SIMD_LEVELS = ("avx512f", "avx2", "avx", "sse4_2", "asimd")  # widest first
+
+
+def simd_level() -> Optional[str]:
+    """The widest vector instruction set the CPU reports (the numba kernels' speed depends on
+    it: 16 float32 lanes with AVX-512, 8 with AVX2), or None where /proc/cpuinfo has no flags."""
+    f = _cpuinfo_fields()
+    flags = set((f.get("flags") or f.get("Features") or "").split())
+    return next((level for level in SIMD_LEVELS if level in flags), None)
+
+
 def memory_gib() -> Optional[float]:
     try:
         return round(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30, 1)
@@ -129,8 +165,9 @@ def gpu_name() -> Optional[str]:
 
 
 def hardware() -> dict:
-    return {"cpu_model": cpu_model(), "cores": os.cpu_count(), "memory_gib": memory_gib(),
-            "gpu": gpu_name(), "platform": f"{platform.system()} {platform.release()} {platform.machine()}"}
+    return {"cpu_model": cpu_model(), "cpu_id": cpu_id(), "simd": simd_level(),
+            "cores": os.cpu_count(), "memory_gib": memory_gib(), "gpu": gpu_name(),
+            "platform": f"{platform.system()} {platform.release()} {platform.machine()}"}
 
 
 def git_state(repo: Path = REPO) -> dict:
@@ -178,7 +215,9 @@ def cpu_seconds() -> float:
 def hardware_line() -> str:
     """CPU model, cores, loadavg and Python: enough to compare figures across runs."""
     load = load_avg()
-    return (f"{cpu_model()}; {os.cpu_count()} cores; loadavg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
+    simd = simd_level()
+    cpu = cpu_model() + (f" ({simd})" if simd else "")
+    return (f"{cpu}; {os.cpu_count()} cores; loadavg {load[0]:.1f}/{load[1]:.1f}/{load[2]:.1f}; "
             f"{platform.python_implementation()} {platform.python_version()}")
 
 
@@ -278,7 +317,8 @@ class Run:
         hw, load, g = self.info["hardware"], self.info["load"]["start"], self.info["git"]
         gpu = hw["gpu"] or "no GPU"
         commit = (g["commit"] or "no git")[:12] + (" (dirty)" if g["dirty"] else "")
-        return (f"# {self.benchmark}: {hw['cpu_model']}, {hw['cores']} cores, {hw['memory_gib']} GiB, {gpu} | "
+        cpu = hw["cpu_model"] + (f" ({hw['simd']})" if hw.get("simd") else "")
+        return (f"# {self.benchmark}: {cpu}, {hw['cores']} cores, {hw['memory_gib']} GiB, {gpu} | "
                 f"load {load[0]:.2f} | commit {commit} | {self.info['command']}")
 
     def start(self) -> "Run":

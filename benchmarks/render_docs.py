@@ -116,7 +116,7 @@ def run_facts(run: dict) -> list[str]:
     out = [f"- command: `{run['command']}`",
            f"- commit: {commit}",
            f"- date: {date}, {run['duration_s']:.0f} s",
-           f"- hardware: {hw['cpu_model']}, {hw['cores']} cores, {hw['memory_gib']} GiB RAM, {gpu}; "
+           f"- hardware: {cpu_line(hw)}, {hw['cores']} cores, {hw['memory_gib']} GiB RAM, {gpu}; "
            f"1-min loadavg {load['start'][0]:.2f} at start, {load['end'][0]:.2f} at end",
            f"- versions: {vers}"]
     if run.get("env"):
@@ -125,6 +125,13 @@ def run_facts(run: dict) -> list[str]:
     for n in run.get("notes", []):
         out.append(f"- note: {cell(n)}")
     return out
+
+
+def cpu_line(hw: dict) -> str:
+    """The CPU model with its family/model numbers and vector set where the file has them
+    (files written before they were recorded give the model name alone)."""
+    extra = [x for x in (hw.get("cpu_id"), hw.get("simd")) if x]
+    return hw["cpu_model"] + (f" ({', '.join(extra)})" if extra else "")
 
 
 def rel(p: str) -> str:

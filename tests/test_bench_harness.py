@@ -54,6 +54,14 @@ def test_run_writes_one_json_with_the_required_keys(tmp_path, capsys):
     assert TOP_KEYS <= set(d) and d["schema"] == common.SCHEMA and d["status"] == "ok"
     hw = d["hardware"]
     assert hw["cpu_model"] and hw["cores"] == os.cpu_count() and hw["memory_gib"] > 0 and "gpu" in hw
+    cpuinfo = Path("/proc/cpuinfo")
+    if cpuinfo.exists() and "flags" in cpuinfo.read_text():
+        flags = set(next(ln for ln in cpuinfo.read_text().splitlines()
+                         if ln.startswith("flags")).split(":", 1)[1].split())
+        assert hw["simd"] in flags and hw["simd"] in common.SIMD_LEVELS
+        wider = common.SIMD_LEVELS[:common.SIMD_LEVELS.index(hw["simd"])]
+        assert not flags & set(wider)  # the widest the CPU has, not merely one it has
+        assert re.fullmatch(r"\S+ family \d+ model \d+", hw["cpu_id"])
     assert len(d["load"]["start"]) == 3 and len(d["load"]["end"]) == 3
     assert re.fullmatch(r"[0-9a-f]{40}", d["git"]["commit"]) and isinstance(d["git"]["dirty"], bool)
     assert d["versions"]["python"].endswith(sys.version.split()[0]) and d["versions"]["numpy"] == np.__version__
