@@ -88,19 +88,21 @@ def assert_grad_close(a: torch.Tensor, b: torch.Tensor, name: str) -> None:
     assert bad.float().mean() <= 5e-3, f"{name}: {int(bad.sum())} elements off"
 
 
-CASES = [  # (scene seed, camera seed, cov_cull_alpha, active degree, image size)
-    (0, 0, None, 3, (48, 32)),
-    (1, 1, None, 1, (40, 40)),
-    (2, 2, 0.02, 3, (48, 32)),
-    (3, 3, None, 0, (33, 21)),
-    (4, 4, 0.005, 2, (48, 32)),
+CASES = [  # (scene seed, camera seed, cov_cull_alpha, active degree, image size, model degree)
+    (0, 0, None, 3, (48, 32), 3),
+    (1, 1, None, 1, (40, 40), 3),
+    (2, 2, 0.02, 3, (48, 32), 3),
+    (3, 3, None, 0, (33, 21), 3),
+    (4, 4, 0.005, 2, (48, 32), 3),
+    (5, 5, None, 3, (48, 32), 2),  # fewer SH rows than the active degree asks for
+    (6, 6, None, 1, (48, 32), 1),
 ]
 
 
-@pytest.mark.parametrize("scene_seed,cam_seed,cov_alpha,degree,size", CASES)
-def test_cpu_matches_reference(scene_seed, cam_seed, cov_alpha, degree, size):
+@pytest.mark.parametrize("scene_seed,cam_seed,cov_alpha,degree,size,model_degree", CASES)
+def test_cpu_matches_reference(scene_seed, cam_seed, cov_alpha, degree, size, model_degree):
     w, h = size
-    scene = random_scene(scene_seed)
+    scene = random_scene(scene_seed, sh_degree=model_degree)
     camera = random_camera(cam_seed, w, h)
     settings = RasterSettings(w, h, cov_cull_alpha=cov_alpha, active_sh_degree=degree)
     weights = loss_weights(scene_seed + 100, h, w)

@@ -76,36 +76,6 @@ def jac_limits(fx, fy, cx, cy, width, height):
 
 
 @njit(cache=True)
-def project_cov(tx, ty, tz, Sc, fx, fy, lims):
-    """Sigma2d (A, B, C) from the camera-frame covariance Sc (9-tuple) and the clamped J.
-
-    Returns A, B, C, j00, j02, j11, j12, txc, tyc, clamped_x, clamped_y.
-    """
-    lxp, lxn, lyp, lyn = lims
-    rx = tx / tz
-    ry = ty / tz
-    cxm = rx < -lxn or rx > lxp
-    cym = ry < -lyn or ry > lyp
-    txc = tz * min(max(rx, -lxn), lxp)
-    tyc = tz * min(max(ry, -lyn), lyp)
-    j00 = fx / tz
-    j11 = fy / tz
-    j02 = -fx * txc / (tz * tz)
-    j12 = -fy * tyc / (tz * tz)
-    A = j00 * j00 * Sc[0] + 2.0 * j00 * j02 * Sc[2] + j02 * j02 * Sc[8] + LOWPASS
-    B = j00 * j11 * Sc[1] + j00 * j12 * Sc[2] + j02 * j11 * Sc[5] + j02 * j12 * Sc[8]
-    C = j11 * j11 * Sc[4] + 2.0 * j11 * j12 * Sc[5] + j12 * j12 * Sc[8] + LOWPASS
-    return A, B, C, j00, j02, j11, j12, txc, tyc, cxm, cym
-
-
-@njit(cache=True)
-def radius_of(A, B, C):
-    """ceil(3 sqrt(lambda_max)) of [[A, B], [B, C]]."""
-    lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
-    return math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
-
-
-@njit(cache=True)
 def conic_vjp(A, B, C, ga, gb, gc):
     """dL/d(Sigma2d) as a symmetric matrix (G00, G01, G11) from dL/d(conic a, b, c).
 

@@ -148,7 +148,7 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
                    cam, width, height, near, far, cov_alpha, fo, box, radii, n_workers=1):
     """Project Gaussians sel[:n_sel]; row r holds Gaussian sel[r]: fo [R, NF] (as
     project_forward), box [R, 4] pixel box (empty, j1 < j0, when it reaches no pixel or is
-    culled) and radii [R] (0 = culled). Same math as project.screen_and_box, with
+    culled) and radii [R] (0 = culled). Same math as project.project_forward, with
     Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)

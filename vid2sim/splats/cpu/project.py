@@ -13,10 +13,17 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._geom import (conic_vjp, cov3d, jac_limits, mm3, pixel_box, project_cov, quat_rot,
-                    quat_rot_vjp, radius_of, tr3)
+from ._geom import jac_limits
+from ._project_planes import (PB, PB_CB, PB_CG, PB_CR, PB_DL0, PB_DL1, PB_DL2, PB_DLOGIT,
+                              PB_DMX, PB_DMY, PB_DMZ, PB_DQW, PB_DQX, PB_DQY, PB_DQZ, PB_DX,
+                              PB_DY, PB_DZ, PB_GMX, PB_K, PB_MX, PB_MY, PB_MZ, PB_O, PB_QW,
+                              PB_QX, PB_QY, PB_QZ, PB_SX, PB_SY, PB_SZ, PCH, PF, PF_A, PF_B,
+                              PF_BL, PF_C, PF_CUT, PF_G, PF_I0, PF_I1, PF_J0, PF_J1, PF_K,
+                              PF_MX, PF_MY, PF_MZ, PF_NX, PF_NY, PF_NZ, PF_O, PF_QW, PF_QX,
+                              PF_QY, PF_QZ, PF_R, PF_RAD, PF_SX, PF_SY, PF_SZ, PF_X, PF_Y,
+                              PF_Z, SH_PLANES, U64, at, backward_lanes, forward_lanes,
+                              gather_sh, sh_grad_row, smallest_axis)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
-from ._sh import sh_basis, sh_color, sh_dir_vjp
 
 SIGMA_CUTOFF = 4.5
 ALPHA_MIN = 1.0 / 255.0
@@ -45,64 +52,6 @@ def sigma_cut(opacity):
 
 
 @njit(cache=True)
-def screen_and_box(t, Sc, opacity, cut, cam, lims, cov_alpha, width, height, fo, c, box):
-    """Shared steps 4-7 for candidate c: writes fo[c] geometry and box[c]; returns radius (0 = culled)."""
-    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
-    tx, ty, tz = t
-    A, B, C, j00, j02, j11, j12, txc, tyc, cxm, cym = project_cov(tx, ty, tz, Sc, fx, fy, lims)
-    det = A * C - B * B
-    if not det > 0.0:
-        return 0
-    if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
-        return 0
-    mx = fx * tx / tz + cx
-    my = fy * ty / tz + cy
-    r = radius_of(A, B, C)
-    if mx + r <= 0.0 or mx - r >= width or my + r <= 0.0 or my - r >= height:
-        return 0
-    fo[c, F_X] = mx
-    fo[c, F_Y] = my
-    fo[c, F_A] = C / det
-    fo[c, F_B] = -B / det
-    fo[c, F_C] = A / det
-    fo[c, F_O] = opacity
-    fo[c, F_CUT] = cut
-    fo[c, F_Z] = tz
-    # Pixel box (inclusive) of the sigma <= cut ellipse's axis-aligned extent (centres j + 0.5);
-    # empty (j1 < j0) when the splat can reach no pixel.
-    box[c, 0] = 0
-    box[c, 1] = 0
-    box[c, 2] = -1
-    box[c, 3] = -1
-    pixel_box(mx, my, cut, A, C, width, height, box, c)
-    return max(r, 1)
-
-
-@njit(cache=True)
-def cam_normal(R, k, W, t):
-    """Column k of R in the camera frame, flipped to face the camera; and the flip sign."""
-    nx, ny, nz = R[k], R[3 + k], R[6 + k]
-    cnx = W[0] * nx + W[1] * ny + W[2] * nz
-    cny = W[3] * nx + W[4] * ny + W[5] * nz
-    cnz = W[6] * nx + W[7] * ny + W[8] * nz
-    f = -1.0 if cnx * t[0] + cny * t[1] + cnz * t[2] > 0.0 else 1.0
-    return f * cnx, f * cny, f * cnz, f
-
-
-@njit(cache=True)
-def argmin3(a, b, c):
-    """Index of the smallest of three (ties: lowest index)."""
-    k = 0
-    m = a
-    if b < m:
-        k = 1
-        m = b
-    if c < m:
-        k = 2
-    return k
-
-
-@njit(cache=True)
 def view_parts(view):
     """(W 9-tuple, tw 3-tuple) from a float64 [4, 4] world-to-camera matrix."""
     W = (view[0, 0], view[0, 1], view[0, 2], view[1, 0], view[1, 1], view[1, 2],
@@ -110,60 +59,85 @@ def view_parts(view):
     return W, (view[0, 3], view[1, 3], view[2, 3])
 
 
-@njit(cache=True, inline="always")
-def _project_one(c, idx, means, quats, log_scales, logits, sh, deg, W, tw, campos, cam, lims,
-                 width, height, near, far, cov_alpha, fo, box, radii):
-    """project_forward for candidate c."""
-    i = idx[c]
-    mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-    radii[c] = 0
-    if not (tz >= near and tz <= far):
-        return
-    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-    t = (tx, ty, tz)
-    w, x, y, z, n, R = quat_rot(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
-    S3, L = cov3d(R, math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]),
-                  math.exp(log_scales[i, 2]))
-    Sc = mm3(mm3(W, S3), tr3(W))
-    opacity = 1.0 / (1.0 + math.exp(-logits[i]))
-    r = screen_and_box(t, Sc, opacity, sigma_cut(opacity), cam, lims, cov_alpha, width, height, fo, c, box)
-    radii[c] = r
-    if r == 0:
-        return
-    vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
-    vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-    cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
-    fo[c, F_R] = max(cr, 0.0)
-    fo[c, F_G] = max(cg, 0.0)
-    fo[c, F_BL] = max(cb, 0.0)
-    k = argmin3(log_scales[i, 0], log_scales[i, 1], log_scales[i, 2])
-    nx, ny, nz, f = cam_normal(R, k, W, t)
-    fo[c, F_NX] = nx
-    fo[c, F_NY] = ny
-    fo[c, F_NZ] = nz
+@njit(cache=True)
+def _forward_chunk(c0, m, idx, means, quats, log_scales, logits, shf, ks, k3, W, tw, campos,
+                   cam, lims, width, height, near, far, cov_alpha, fo, box, radii, buf, shp):
+    """Candidates c0 .. c0+m-1 (m <= PCH): gather, project in lanes, scatter the rows."""
+    for jj in range(m):
+        i = idx[c0 + jj]
+        j = U64(jj)
+        buf[at(PF_MX, j)] = means[i, 0]
+        buf[at(PF_MY, j)] = means[i, 1]
+        buf[at(PF_MZ, j)] = means[i, 2]
+        buf[at(PF_QW, j)] = quats[i, 0]
+        buf[at(PF_QX, j)] = quats[i, 1]
+        buf[at(PF_QY, j)] = quats[i, 2]
+        buf[at(PF_QZ, j)] = quats[i, 3]
+        l0, l1, l2 = log_scales[i, 0], log_scales[i, 1], log_scales[i, 2]
+        buf[at(PF_SX, j)] = math.exp(l0)
+        buf[at(PF_SY, j)] = math.exp(l1)
+        buf[at(PF_SZ, j)] = math.exp(l2)
+        o = 1.0 / (1.0 + math.exp(-logits[i]))
+        buf[at(PF_O, j)] = o
+        buf[at(PF_CUT, j)] = sigma_cut(o)
+        buf[at(PF_K, j)] = smallest_axis(l0, l1, l2)
+        gather_sh(shp, shf, i * ks, k3, j)
+    forward_lanes(buf, shp, m, W, tw, campos, cam, lims, np.float64(width),
+                  np.float64(height), near, far, cov_alpha)
+    for jj in range(m):
+        c = c0 + jj
+        j = U64(jj)
+        rad = buf[at(PF_RAD, j)]
+        radii[c] = np.int32(rad)
+        if rad == 0.0:
+            continue
+        fo[c, F_X] = buf[at(PF_X, j)]
+        fo[c, F_Y] = buf[at(PF_Y, j)]
+        fo[c, F_A] = buf[at(PF_A, j)]
+        fo[c, F_B] = buf[at(PF_B, j)]
+        fo[c, F_C] = buf[at(PF_C, j)]
+        fo[c, F_O] = buf[at(PF_O, j)]
+        fo[c, F_CUT] = buf[at(PF_CUT, j)]
+        fo[c, F_Z] = buf[at(PF_Z, j)]
+        fo[c, F_R] = buf[at(PF_R, j)]
+        fo[c, F_G] = buf[at(PF_G, j)]
+        fo[c, F_BL] = buf[at(PF_BL, j)]
+        fo[c, F_NX] = buf[at(PF_NX, j)]
+        fo[c, F_NY] = buf[at(PF_NY, j)]
+        fo[c, F_NZ] = buf[at(PF_NZ, j)]
+        box[c, 0] = np.int32(buf[at(PF_J0, j)])
+        box[c, 1] = np.int32(buf[at(PF_I0, j)])
+        box[c, 2] = np.int32(buf[at(PF_J1, j)])
+        box[c, 3] = np.int32(buf[at(PF_I1, j)])
 
 
 @njit(parallel=True, cache=True)
 def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos, cam,
                     width, height, near, far, cov_alpha, fo, box, radii, n_workers=1):
     """Project candidates idx [C] -> fo [C, NF] float32, box [C, 4] int32 (pixel box
-    j0, i0, j1, i1 inclusive), radii [C] int32. n_workers draw chunks of candidates from
-    a shared counter (dynamic balance)."""
+    j0, i0, j1, i1 inclusive; empty, j1 < j0, when the splat reaches no pixel centre),
+    radii [C] int32 (0 = culled; fo and box rows of culled candidates are left as they
+    were). sh [N, K, 3] C-contiguous. n_workers draw chunks of candidates from a shared
+    counter (dynamic balance); each projects PCH candidates at a time in vector lanes."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     n = idx.shape[0]
+    shf = sh.reshape(-1)
+    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
     n_items = n_chunks(n, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
+        buf = np.empty(PF * PCH, np.float64)
+        shp = np.zeros(SH_PLANES * PCH, np.float32)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:
                 break
-            for c in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
-                _project_one(c, idx, means, quats, log_scales, logits, sh, deg, W, tw, campos,
-                             cam, lims, width, height, near, far, cov_alpha, fo, box, radii)
+            end = min(n, (ch + 1) * CHUNK)
+            for c0 in range(ch * CHUNK, end, PCH):
+                _forward_chunk(c0, min(PCH, end - c0), idx, means, quats, log_scales, logits,
+                               shf, ks, k3, W, tw, campos, cam, lims, width, height, near, far,
+                               cov_alpha, fo, box, radii, buf, shp)
 
 
 # Columns of the per-visible-splat 2D gradient `g2` [V, NG] (raster backward output).
@@ -171,122 +145,54 @@ G_MX, G_MY, G_A, G_B, G_C, G_O, G_R, G_G, G_BL, G_Z, G_NX, G_NY, G_NZ, G_AX, G_A
 NG = 16
 
 
-@njit(cache=True, inline="always")
-def _backward_one(v, ids, means, quats, log_scales, logits, sh, deg, W, tw, campos, cam, lims,
-                  g2, d_means, d_quats, d_logs, d_logits, d_sh, grad2d, absgrad, want_abs):
-    """project_backward for visible splat v."""
-    fx, fy = cam[0], cam[1]
-    i = ids[v]
-    g = g2[v]
-    grad2d[i, 0] += g[G_MX]
-    grad2d[i, 1] += g[G_MY]
-    if want_abs:
-        absgrad[i, 0] += g[G_AX]
-        absgrad[i, 1] += g[G_AY]
-    mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-    t = (tx, ty, tz)
-    qw, qx, qy, qz, qn, R = quat_rot(quats[i, 0], quats[i, 1], quats[i, 2], quats[i, 3])
-    sx, sy, sz = math.exp(log_scales[i, 0]), math.exp(log_scales[i, 1]), math.exp(log_scales[i, 2])
-    S3, L = cov3d(R, sx, sy, sz)
-    Sc = mm3(mm3(W, S3), tr3(W))
-    A, B, C, j00, j02, j11, j12, txc, tyc, cxm, cym = project_cov(tx, ty, tz, Sc, fx, fy, lims)
-
-    # opacity
-    o = 1.0 / (1.0 + math.exp(-logits[i]))
-    d_logits[i] = g[G_O] * o * (1.0 - o)
-
-    # colour -> sh and view direction
-    vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
-    vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-    dx, dy, dz = vx / vn, vy / vn, vz / vn
-    cr, cg, cb = sh_color(deg, sh[i], dx, dy, dz)
-    gr = g[G_R] if cr >= 0.0 else 0.0
-    gg = g[G_G] if cg >= 0.0 else 0.0
-    gb = g[G_BL] if cb >= 0.0 else 0.0
-    bs = sh_basis(dx, dy, dz)
-    for k in range((deg + 1) * (deg + 1)):
-        d_sh[i, k, 0] = bs[k] * gr
-        d_sh[i, k, 1] = bs[k] * gg
-        d_sh[i, k, 2] = bs[k] * gb
-    ddx, ddy, ddz = sh_dir_vjp(deg, sh[i], dx, dy, dz, gr, gg, gb)
-    dd = ddx * dx + ddy * dy + ddz * dz
-    gmx = (ddx - dx * dd) / vn
-    gmy = (ddy - dy * dd) / vn
-    gmz = (ddz - dz * dd) / vn
-
-    # conic -> Sigma2d -> (J, Sigma_cam) -> Sigma3d -> (R, s)
-    G00, G01, G11 = conic_vjp(A, B, C, g[G_A], g[G_B], g[G_C])
-    # G_Sc = J^T G J, J = [[j00, 0, j02], [0, j11, j12]]
-    a0 = G00 * j00
-    a1 = G01 * j11
-    b0 = G01 * j00
-    b1 = G11 * j11
-    q0 = G00 * j02 + G01 * j12
-    q1 = G01 * j02 + G11 * j12
-    GSc = (j00 * a0, j00 * a1, j00 * q0,
-           j11 * b0, j11 * b1, j11 * q1,
-           j02 * a0 + j12 * b0, j02 * a1 + j12 * b1, j02 * q0 + j12 * q1)
-    # G_J = 2 G J Sc  (2x3)
-    JS0 = (j00 * Sc[0] + j02 * Sc[6], j00 * Sc[1] + j02 * Sc[7], j00 * Sc[2] + j02 * Sc[8])
-    JS1 = (j11 * Sc[3] + j12 * Sc[6], j11 * Sc[4] + j12 * Sc[7], j11 * Sc[5] + j12 * Sc[8])
-    gj00 = 2.0 * (G00 * JS0[0] + G01 * JS1[0])
-    gj02 = 2.0 * (G00 * JS0[2] + G01 * JS1[2])
-    gj11 = 2.0 * (G01 * JS0[1] + G11 * JS1[1])
-    gj12 = 2.0 * (G01 * JS0[2] + G11 * JS1[2])
-    GS3 = mm3(mm3(tr3(W), GSc), W)
-    # symmetrise (Sigma3d is symmetric; G_L = (G + G^T) L)
-    GS = (GS3[0] + GS3[0], GS3[1] + GS3[3], GS3[2] + GS3[6],
-          GS3[3] + GS3[1], GS3[4] + GS3[4], GS3[5] + GS3[7],
-          GS3[6] + GS3[2], GS3[7] + GS3[5], GS3[8] + GS3[8])
-    GL = mm3(GS, L)
-    GR = (GL[0] * sx, GL[1] * sy, GL[2] * sz, GL[3] * sx, GL[4] * sy, GL[5] * sz,
-          GL[6] * sx, GL[7] * sy, GL[8] * sz)
-    d_logs[i, 0] = (GL[0] * R[0] + GL[3] * R[3] + GL[6] * R[6]) * sx
-    d_logs[i, 1] = (GL[1] * R[1] + GL[4] * R[4] + GL[7] * R[7]) * sy
-    d_logs[i, 2] = (GL[2] * R[2] + GL[5] * R[5] + GL[8] * R[8]) * sz
-
-    # normal -> R column
-    k = argmin3(log_scales[i, 0], log_scales[i, 1], log_scales[i, 2])
-    nx, ny, nz, f = cam_normal(R, k, W, t)
-    gnx, gny, gnz = g[G_NX], g[G_NY], g[G_NZ]
-    wx = f * (W[0] * gnx + W[3] * gny + W[6] * gnz)
-    wy = f * (W[1] * gnx + W[4] * gny + W[7] * gnz)
-    wz = f * (W[2] * gnx + W[5] * gny + W[8] * gnz)
-    if k == 0:
-        GR = (GR[0] + wx, GR[1], GR[2], GR[3] + wy, GR[4], GR[5], GR[6] + wz, GR[7], GR[8])
-    elif k == 1:
-        GR = (GR[0], GR[1] + wx, GR[2], GR[3], GR[4] + wy, GR[5], GR[6], GR[7] + wz, GR[8])
-    else:
-        GR = (GR[0], GR[1], GR[2] + wx, GR[3], GR[4], GR[5] + wy, GR[6], GR[7], GR[8] + wz)
-    dqw, dqx, dqy, dqz = quat_rot_vjp(qw, qx, qy, qz, qn, GR)
-    d_quats[i, 0] = dqw
-    d_quats[i, 1] = dqx
-    d_quats[i, 2] = dqy
-    d_quats[i, 3] = dqz
-
-    # camera-frame mean: mean2d, depth, and J
-    iz = 1.0 / tz
-    dtx = fx * iz * g[G_MX]
-    dty = fy * iz * g[G_MY]
-    dtz = -fx * tx * iz * iz * g[G_MX] - fy * ty * iz * iz * g[G_MY] + g[G_Z]
-    dtz += -fx * iz * iz * gj00 - fy * iz * iz * gj11
-    dtxc = -fx * iz * iz * gj02
-    dtyc = -fy * iz * iz * gj12
-    dtz += 2.0 * fx * txc * iz * iz * iz * gj02 + 2.0 * fy * tyc * iz * iz * iz * gj12
-    if cxm:
-        dtz += dtxc * txc * iz
-    else:
-        dtx += dtxc
-    if cym:
-        dtz += dtyc * tyc * iz
-    else:
-        dty += dtyc
-    d_means[i, 0] = W[0] * dtx + W[3] * dty + W[6] * dtz + gmx
-    d_means[i, 1] = W[1] * dtx + W[4] * dty + W[7] * dtz + gmy
-    d_means[i, 2] = W[2] * dtx + W[5] * dty + W[8] * dtz + gmz
+@njit(cache=True)
+def _backward_chunk(v0, m, ids, means, quats, log_scales, logits, shf, ks, k3, W, tw, campos,
+                    cam, lims, g2, d_means, d_quats, d_logs, d_logits, d_sh, grad2d, absgrad,
+                    want_abs, buf, shp):
+    """Visible splats v0 .. v0+m-1 (m <= PCH): gather, VJP in lanes, scatter the rows."""
+    for jj in range(m):
+        v = v0 + jj
+        i = ids[v]
+        j = U64(jj)
+        buf[at(PB_MX, j)] = means[i, 0]
+        buf[at(PB_MY, j)] = means[i, 1]
+        buf[at(PB_MZ, j)] = means[i, 2]
+        buf[at(PB_QW, j)] = quats[i, 0]
+        buf[at(PB_QX, j)] = quats[i, 1]
+        buf[at(PB_QY, j)] = quats[i, 2]
+        buf[at(PB_QZ, j)] = quats[i, 3]
+        l0, l1, l2 = log_scales[i, 0], log_scales[i, 1], log_scales[i, 2]
+        buf[at(PB_SX, j)] = math.exp(l0)
+        buf[at(PB_SY, j)] = math.exp(l1)
+        buf[at(PB_SZ, j)] = math.exp(l2)
+        buf[at(PB_O, j)] = 1.0 / (1.0 + math.exp(-logits[i]))
+        buf[at(PB_K, j)] = smallest_axis(l0, l1, l2)
+        for q in range(13):  # G_MX .. G_NZ, in the same order as PB_GMX .. PB_GNZ
+            buf[at(PB_GMX + q, j)] = g2[v, G_MX + q]
+        gather_sh(shp, shf, i * ks, k3, j)
+    backward_lanes(buf, shp, m, W, tw, campos, cam, lims)
+    for jj in range(m):
+        v = v0 + jj
+        i = ids[v]
+        j = U64(jj)
+        grad2d[i, 0] += g2[v, G_MX]
+        grad2d[i, 1] += g2[v, G_MY]
+        if want_abs:
+            absgrad[i, 0] += g2[v, G_AX]
+            absgrad[i, 1] += g2[v, G_AY]
+        d_means[i, 0] = buf[at(PB_DMX, j)]
+        d_means[i, 1] = buf[at(PB_DMY, j)]
+        d_means[i, 2] = buf[at(PB_DMZ, j)]
+        d_quats[i, 0] = buf[at(PB_DQW, j)]
+        d_quats[i, 1] = buf[at(PB_DQX, j)]
+        d_quats[i, 2] = buf[at(PB_DQY, j)]
+        d_quats[i, 3] = buf[at(PB_DQZ, j)]
+        d_logs[i, 0] = buf[at(PB_DL0, j)]
+        d_logs[i, 1] = buf[at(PB_DL1, j)]
+        d_logs[i, 2] = buf[at(PB_DL2, j)]
+        d_logits[i] = buf[at(PB_DLOGIT, j)]
+        sh_grad_row(d_sh, i, k3, buf[at(PB_DX, j)], buf[at(PB_DY, j)], buf[at(PB_DZ, j)],
+                    buf[at(PB_CR, j)], buf[at(PB_CG, j)], buf[at(PB_CB, j)])
 
 
 @njit(parallel=True, cache=True)
@@ -301,14 +207,19 @@ def project_backward(ids, means, quats, log_scales, logits, sh, deg, view, campo
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     n = ids.shape[0]
+    shf = sh.reshape(-1)
+    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
     n_items = n_chunks(n, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
+        buf = np.empty(PB * PCH, np.float64)
+        shp = np.zeros(SH_PLANES * PCH, np.float32)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:
                 break
-            for v in range(ch * CHUNK, min(n, (ch + 1) * CHUNK)):
-                _backward_one(v, ids, means, quats, log_scales, logits, sh, deg, W, tw, campos,
-                              cam, lims, g2, d_means, d_quats, d_logs, d_logits, d_sh, grad2d,
-                              absgrad, want_abs)
+            end = min(n, (ch + 1) * CHUNK)
+            for v0 in range(ch * CHUNK, end, PCH):
+                _backward_chunk(v0, min(PCH, end - v0), ids, means, quats, log_scales, logits,
+                                shf, ks, k3, W, tw, campos, cam, lims, g2, d_means, d_quats,
+                                d_logs, d_logits, d_sh, grad2d, absgrad, want_abs, buf, shp)
