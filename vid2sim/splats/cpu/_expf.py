@@ -85,3 +85,40 @@ def expf_glibc(x):
     y = fma64(C2, r, 1.0)
     y = fma64(z, r * r, y)
     return np.float32(y * s)
+
+
+@intrinsic
+def bits_f32(typingctx, u):
+    """The float32 whose bits are the int32 u."""
+    sig = types.float32(types.int32)
+
+    def codegen(context, builder, sig, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float32))
+
+    return sig, codegen
+
+
+F32 = np.float32
+LOG2E_F = F32(1.44269504088896341)
+LN2_HI_F, LN2_LO_F = F32(0.693359375), F32(-2.12194440e-4)
+P0, P1, P2, P3, P4, P5 = (F32(1.9875691500e-4), F32(1.3981999507e-3), F32(8.3334519073e-3),
+                          F32(4.1665795894e-2), F32(1.6666665459e-1), F32(5.0000001201e-1))
+
+
+@njit(cache=True, inline="always")
+def expf_lanes(x):
+    """exp(x) of a float32 in float32 lanes (Cephes' expf: 2^k times a degree-7 polynomial of
+    the reduced argument; within 3 ulp of glibc's expf on [-87, 0]). For loops whose results
+    need not equal np.exp bit for bit (the composite's backward): 8 lanes per AVX2 register,
+    no table, no double precision. x below -87 is clamped (the result is then ~1e-38)."""
+    x = max(x, F32(-87.0))
+    k = np.floor(x * LOG2E_F + F32(0.5))
+    r = x - k * LN2_HI_F
+    r = r - k * LN2_LO_F
+    p = P0 * r + P1
+    p = p * r + P2
+    p = p * r + P3
+    p = p * r + P4
+    p = p * r + P5
+    p = p * r * r + r + F32(1.0)
+    return p * bits_f32((np.int32(k) + np.int32(127)) << np.int32(23))
