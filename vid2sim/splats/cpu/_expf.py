@@ -50,26 +50,22 @@ def fma64(typingctx, a, b, c):
     return sig, codegen
 
 
-@intrinsic
-def f64_bits(typingctx, x):
-    """The bits of a float64 as uint64."""
-    sig = types.uint64(types.float64)
+def _bitcast(src, dst, doc: str):
+    """An intrinsic that reinterprets a value of numba type src as dst (same width)."""
+    @intrinsic
+    def cast(typingctx, x):
+        def codegen(context, builder, sig, args):
+            return builder.bitcast(args[0], context.get_value_type(dst))
 
-    def codegen(context, builder, sig, args):
-        return builder.bitcast(args[0], context.get_value_type(types.uint64))
+        return dst(src), codegen
 
-    return sig, codegen
+    cast.__doc__ = doc
+    return cast
 
 
-@intrinsic
-def bits_f64(typingctx, u):
-    """The float64 whose bits are the uint64 u."""
-    sig = types.float64(types.uint64)
-
-    def codegen(context, builder, sig, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float64))
-
-    return sig, codegen
+f64_bits = _bitcast(types.float64, types.uint64, "The bits of a float64 as uint64.")
+bits_f64 = _bitcast(types.uint64, types.float64, "The float64 whose bits are the uint64 u.")
+bits_f32 = _bitcast(types.int32, types.float32, "The float32 whose bits are the int32 u.")
 
 
 @njit(cache=True, inline="always")
@@ -85,17 +81,6 @@ def expf_glibc(x):
     y = fma64(C2, r, 1.0)
     y = fma64(z, r * r, y)
     return np.float32(y * s)
-
-
-@intrinsic
-def bits_f32(typingctx, u):
-    """The float32 whose bits are the int32 u."""
-    sig = types.float32(types.int32)
-
-    def codegen(context, builder, sig, args):
-        return builder.bitcast(args[0], context.get_value_type(types.float32))
-
-    return sig, codegen
 
 
 F32 = np.float32

@@ -24,7 +24,8 @@ U64 = np.uint64
 PCH = 64  # splats per chunk: the vector loop's trip count
 SH_PLANES = 48  # 16 coefficients x 3 channels; planes past the active degree hold zeros
 
-# float64 planes of the forward's buffer [PF * PCH]: inputs, then outputs
+# float64 planes of the forward's buffer [PF * PCH]: inputs (planes 0-10 the same as the
+# backward's: `gather_model`), then outputs
 (PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF_O, PF_CUT, PF_K,
  PF_X, PF_Y, PF_A, PF_B, PF_C, PF_Z, PF_R, PF_G, PF_BL, PF_NX, PF_NY, PF_NZ,
  PF_J0, PF_I0, PF_J1, PF_I1, PF_RAD) = range(30)
@@ -44,6 +45,25 @@ PB = 42
 def at(k, j):
     """Offset of lane j in plane k."""
     return U64(k * PCH) + j
+
+
+@njit(cache=True, inline="always")
+def gather_model(buf, j, i, means, quats, log_scales, logits):
+    """Lane j of the planes both passes share (mean, quaternion, scales, opacity: planes 0-10)
+    from splat i; returns its log-scales."""
+    buf[at(0, j)] = means[i, 0]
+    buf[at(1, j)] = means[i, 1]
+    buf[at(2, j)] = means[i, 2]
+    buf[at(3, j)] = quats[i, 0]
+    buf[at(4, j)] = quats[i, 1]
+    buf[at(5, j)] = quats[i, 2]
+    buf[at(6, j)] = quats[i, 3]
+    l0, l1, l2 = log_scales[i, 0], log_scales[i, 1], log_scales[i, 2]
+    buf[at(7, j)] = math.exp(l0)
+    buf[at(8, j)] = math.exp(l1)
+    buf[at(9, j)] = math.exp(l2)
+    buf[at(10, j)] = 1.0 / (1.0 + math.exp(-logits[i]))
+    return l0, l1, l2
 
 
 @njit(cache=True, inline="always")
@@ -350,3 +370,7 @@ def sh_grad_row(d_sh, i, k3, dx, dy, dz, gr, gg, gb):
         d_sh[i, k, 0] = bs[k] * gr
         d_sh[i, k, 1] = bs[k] * gg
         d_sh[i, k, 2] = bs[k] * gb
+
+
+assert (PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF_O) == tuple(range(11))
+assert (PB_MX, PB_MY, PB_MZ, PB_QW, PB_QX, PB_QY, PB_QZ, PB_SX, PB_SY, PB_SZ, PB_O) == tuple(range(11))

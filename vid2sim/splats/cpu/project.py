@@ -16,13 +16,11 @@ from numba import njit, prange
 from ._geom import jac_limits
 from ._project_planes import (PB, PB_CB, PB_CG, PB_CR, PB_DL0, PB_DL1, PB_DL2, PB_DLOGIT,
                               PB_DMX, PB_DMY, PB_DMZ, PB_DQW, PB_DQX, PB_DQY, PB_DQZ, PB_DX,
-                              PB_DY, PB_DZ, PB_GMX, PB_K, PB_MX, PB_MY, PB_MZ, PB_O, PB_QW,
-                              PB_QX, PB_QY, PB_QZ, PB_SX, PB_SY, PB_SZ, PCH, PF, PF_A, PF_B,
-                              PF_BL, PF_C, PF_CUT, PF_G, PF_I0, PF_I1, PF_J0, PF_J1, PF_K,
-                              PF_MX, PF_MY, PF_MZ, PF_NX, PF_NY, PF_NZ, PF_O, PF_QW, PF_QX,
-                              PF_QY, PF_QZ, PF_R, PF_RAD, PF_SX, PF_SY, PF_SZ, PF_X, PF_Y,
-                              PF_Z, SH_PLANES, U64, at, backward_lanes, forward_lanes,
-                              gather_sh, sh_grad_row, smallest_axis)
+                              PB_DY, PB_DZ, PB_GMX, PB_K, PCH, PF, PF_A, PF_B, PF_BL, PF_C,
+                              PF_CUT, PF_G, PF_I0, PF_I1, PF_J0, PF_J1, PF_K, PF_NX, PF_NY,
+                              PF_NZ, PF_O, PF_R, PF_RAD, PF_X, PF_Y, PF_Z, SH_PLANES, U64, at,
+                              backward_lanes, forward_lanes, gather_model, gather_sh,
+                              sh_grad_row, smallest_axis)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 
 SIGMA_CUTOFF = 4.5
@@ -66,20 +64,8 @@ def _forward_chunk(c0, m, idx, means, quats, log_scales, logits, shf, ks, k3, W,
     for jj in range(m):
         i = idx[c0 + jj]
         j = U64(jj)
-        buf[at(PF_MX, j)] = means[i, 0]
-        buf[at(PF_MY, j)] = means[i, 1]
-        buf[at(PF_MZ, j)] = means[i, 2]
-        buf[at(PF_QW, j)] = quats[i, 0]
-        buf[at(PF_QX, j)] = quats[i, 1]
-        buf[at(PF_QY, j)] = quats[i, 2]
-        buf[at(PF_QZ, j)] = quats[i, 3]
-        l0, l1, l2 = log_scales[i, 0], log_scales[i, 1], log_scales[i, 2]
-        buf[at(PF_SX, j)] = math.exp(l0)
-        buf[at(PF_SY, j)] = math.exp(l1)
-        buf[at(PF_SZ, j)] = math.exp(l2)
-        o = 1.0 / (1.0 + math.exp(-logits[i]))
-        buf[at(PF_O, j)] = o
-        buf[at(PF_CUT, j)] = sigma_cut(o)
+        l0, l1, l2 = gather_model(buf, j, i, means, quats, log_scales, logits)
+        buf[at(PF_CUT, j)] = sigma_cut(buf[at(PF_O, j)])
         buf[at(PF_K, j)] = smallest_axis(l0, l1, l2)
         gather_sh(shp, shf, i * ks, k3, j)
     forward_lanes(buf, shp, m, W, tw, campos, cam, lims, np.float64(width),
@@ -154,18 +140,7 @@ def _backward_chunk(v0, m, ids, means, quats, log_scales, logits, shf, ks, k3, W
         v = v0 + jj
         i = ids[v]
         j = U64(jj)
-        buf[at(PB_MX, j)] = means[i, 0]
-        buf[at(PB_MY, j)] = means[i, 1]
-        buf[at(PB_MZ, j)] = means[i, 2]
-        buf[at(PB_QW, j)] = quats[i, 0]
-        buf[at(PB_QX, j)] = quats[i, 1]
-        buf[at(PB_QY, j)] = quats[i, 2]
-        buf[at(PB_QZ, j)] = quats[i, 3]
-        l0, l1, l2 = log_scales[i, 0], log_scales[i, 1], log_scales[i, 2]
-        buf[at(PB_SX, j)] = math.exp(l0)
-        buf[at(PB_SY, j)] = math.exp(l1)
-        buf[at(PB_SZ, j)] = math.exp(l2)
-        buf[at(PB_O, j)] = 1.0 / (1.0 + math.exp(-logits[i]))
+        l0, l1, l2 = gather_model(buf, j, i, means, quats, log_scales, logits)
         buf[at(PB_K, j)] = smallest_axis(l0, l1, l2)
         for q in range(13):  # G_MX .. G_NZ, in the same order as PB_GMX .. PB_GNZ
             buf[at(PB_GMX + q, j)] = g2[v, G_MX + q]
