@@ -16,7 +16,7 @@ import math
 import numpy as np
 from numba import njit
 
-from ._geom import LOWPASS, conic_vjp, cov3d, mm3, quat_rot, quat_rot_vjp, tr3
+from ._geom import LOWPASS, conic_vjp, cov3d, mm3, quat_rot, quat_rot_vjp, screen_cov, tr3
 from ._sh import (C0, C1, C20, C21, C22, C23, C24, C30, C31, C32, C33, C34, C35, C36,
                   sh_basis)
 
@@ -374,3 +374,85 @@ def sh_grad_row(d_sh, i, k3, dx, dy, dz, gr, gg, gb):
 
 assert (PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF_O) == tuple(range(11))
 assert (PB_MX, PB_MY, PB_MZ, PB_QW, PB_QX, PB_QY, PB_QZ, PB_SX, PB_SY, PB_SZ, PB_O) == tuple(range(11))
+
+
+# float64 planes of the env path's buffer [PS * PCH] (cached world covariances): inputs, then
+# outputs
+(PS_MX, PS_MY, PS_MZ, PS_S00, PS_S01, PS_S02, PS_S11, PS_S12, PS_S22, PS_CUT, PS_NX, PS_NY,
+ PS_NZ, PS_R, PS_G, PS_BL,
+ PS_X, PS_Y, PS_A, PS_B, PS_C, PS_Z, PS_CR, PS_CG, PS_CB, PS_ONX, PS_ONY, PS_ONZ,
+ PS_J0, PS_I0, PS_J1, PS_I1, PS_RAD) = range(33)
+PS = 33
+
+
+@njit(cache=True, error_model="numpy")
+def static_lanes(buf, shp, m, deg, W, tw, campos, cam, lims, width, height, near, far,
+                 cov_alpha):
+    """The env path's projection (`env_scene_kernels.project_static`) of lanes 0..m-1: the
+    same arithmetic in the same order as its one-splat form, so the same bits, with the
+    culling tests as selects. PS_RAD is the pixel radius (>= 1) or 0 where culled; the box
+    planes hold an empty box (0, 0, -1, -1) where the splat is culled or reaches no pixel
+    centre. deg 0 takes the cached colours (PS_R .. PS_BL) unclamped."""
+    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
+    lxp, lxn, lyp, lyn = lims
+    lim_cov = cov_alpha * height * width
+    for jj in range(m):
+        j = U64(jj)
+        mx, my, mz = buf[at(PS_MX, j)], buf[at(PS_MY, j)], buf[at(PS_MZ, j)]
+        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+        ok = (tz >= near) & (tz <= far)
+        tz = tz if ok else 1.0
+        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+        iz = 1.0 / tz
+        rx = min(max(tx * iz, -lxn), lxp)
+        ry = min(max(ty * iz, -lyn), lyp)
+        j00 = fx * iz
+        j11 = fy * iz
+        j02 = -fx * rx * iz
+        j12 = -fy * ry * iz
+        A, B, C = screen_cov(W, j00, j02, j11, j12, buf[at(PS_S00, j)], buf[at(PS_S01, j)],
+                             buf[at(PS_S02, j)], buf[at(PS_S11, j)], buf[at(PS_S12, j)],
+                             buf[at(PS_S22, j)])
+        det = A * C - B * B
+        ok = ok & (det > 0.0)
+        ok = ok & ((cov_alpha <= 0.0) | (max(abs(A), abs(B), abs(C)) <= lim_cov))
+        px = fx * tx * iz + cx
+        py = fy * ty * iz + cy
+        lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
+        rad = np.ceil(3.0 * math.sqrt(max(lam, 0.0)))
+        ok = ok & (px + rad > 0.0) & (px - rad < width) & (py + rad > 0.0) & (py - rad < height)
+        idet = 1.0 / (det if ok else 1.0)
+        ct = buf[at(PS_CUT, j)]
+        ex = math.sqrt(max(2.0 * ct * A, 0.0)) * 1.001 + 1e-3
+        ey = math.sqrt(max(2.0 * ct * C, 0.0)) * 1.001 + 1e-3
+        j0 = max(np.ceil(px - ex - 0.5), 0.0)
+        j1 = min(np.floor(px + ex - 0.5), width - 1.0)
+        i0 = max(np.ceil(py - ey - 0.5), 0.0)
+        i1 = min(np.floor(py + ey - 0.5), height - 1.0)
+        empty = ~ok | (ct <= 0.0) | (j0 > j1) | (i0 > i1)
+        vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
+        vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
+        cr, cg, cb = sh_color_lane(shp, j, vx / vn, vy / vn, vz / vn)
+        nx, ny, nz = buf[at(PS_NX, j)], buf[at(PS_NY, j)], buf[at(PS_NZ, j)]
+        cnx = W[0] * nx + W[1] * ny + W[2] * nz
+        cny = W[3] * nx + W[4] * ny + W[5] * nz
+        cnz = W[6] * nx + W[7] * ny + W[8] * nz
+        f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
+        buf[at(PS_X, j)] = px
+        buf[at(PS_Y, j)] = py
+        buf[at(PS_A, j)] = C * idet
+        buf[at(PS_B, j)] = -B * idet
+        buf[at(PS_C, j)] = A * idet
+        buf[at(PS_Z, j)] = tz
+        buf[at(PS_CR, j)] = buf[at(PS_R, j)] if deg == 0 else max(cr, 0.0)
+        buf[at(PS_CG, j)] = buf[at(PS_G, j)] if deg == 0 else max(cg, 0.0)
+        buf[at(PS_CB, j)] = buf[at(PS_BL, j)] if deg == 0 else max(cb, 0.0)
+        buf[at(PS_ONX, j)] = f * cnx
+        buf[at(PS_ONY, j)] = f * cny
+        buf[at(PS_ONZ, j)] = f * cnz
+        buf[at(PS_J0, j)] = 0.0 if empty else j0
+        buf[at(PS_I0, j)] = 0.0 if empty else i0
+        buf[at(PS_J1, j)] = -1.0 if empty else j1
+        buf[at(PS_I1, j)] = -1.0 if empty else i1
+        buf[at(PS_RAD, j)] = max(rad, 1.0) if ok else 0.0

@@ -9,9 +9,12 @@ import math
 import numpy as np
 from numba import njit, prange
 
-from ._geom import jac_limits, pixel_box, screen_cov
+from ._geom import jac_limits
+from ._project_planes import (PCH, PS, PS_A, PS_B, PS_C, PS_CB, PS_CG, PS_CR, PS_CUT, PS_I0,
+                              PS_I1, PS_J0, PS_J1, PS_MX, PS_MY, PS_MZ, PS_NX, PS_ONX, PS_ONY,
+                              PS_ONZ, PS_R, PS_RAD, PS_S00, PS_X, PS_Y, PS_Z, SH_PLANES, U64, at,
+                              gather_sh, static_lanes)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
-from ._sh import sh_color
 from .project import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
                       F_Z, sigma_cut, view_parts)
 
@@ -65,82 +68,55 @@ def cull_cells(centers, r_means, rho, cell_start, view, cam, width, height, near
 
 
 @njit(cache=True)
-def _set_empty(box, r):
-    box[r, 0] = 0
-    box[r, 1] = 0
-    box[r, 2] = -1
-    box[r, 3] = -1
-
-
-@njit(cache=True, inline="always")
-def _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw, campos, cam,
-                lims, width, height, near, far, cov_alpha, fo, box, radii, normals=True):
-    """project_static for row r (normals=False leaves fo's normal columns unwritten)."""
-    fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
-    lxp, lxn, lyp, lyn = lims
-    i = sel[r]
-    radii[r] = 0
-    _set_empty(box, r)
-    mx, my, mz = means[i, 0], means[i, 1], means[i, 2]
-    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-    if not (tz >= near and tz <= far):
-        return
-    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
-    iz = 1.0 / tz
-    rx = min(max(tx * iz, -lxn), lxp)
-    ry = min(max(ty * iz, -lyn), lyp)
-    j00 = fx * iz
-    j11 = fy * iz
-    j02 = -fx * rx * iz
-    j12 = -fy * ry * iz
-    s00, s01, s02 = cov[i, 0], cov[i, 1], cov[i, 2]
-    s11, s12, s22 = cov[i, 3], cov[i, 4], cov[i, 5]
-    A, B, C = screen_cov(W, j00, j02, j11, j12, s00, s01, s02, s11, s12, s22)
-    det = A * C - B * B
-    if not det > 0.0:
-        return
-    if cov_alpha > 0.0 and max(abs(A), abs(B), abs(C)) > cov_alpha * height * width:
-        return
-    px = fx * tx * iz + cx
-    py = fy * ty * iz + cy
-    lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
-    rad = math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
-    if px + rad <= 0.0 or px - rad >= width or py + rad <= 0.0 or py - rad >= height:
-        return
-    radii[r] = max(rad, 1)
-    ct = cut[i]
-    idet = 1.0 / det
-    fo[r, F_X] = px
-    fo[r, F_Y] = py
-    fo[r, F_A] = C * idet
-    fo[r, F_B] = -B * idet
-    fo[r, F_C] = A * idet
-    fo[r, F_O] = opacity[i]
-    fo[r, F_CUT] = ct
-    fo[r, F_Z] = tz
-    pixel_box(px, py, ct, A, C, width, height, box, r)
-    if deg == 0:
-        fo[r, F_R] = rgb[i, 0]
-        fo[r, F_G] = rgb[i, 1]
-        fo[r, F_BL] = rgb[i, 2]
-    else:
-        vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
-        vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
-        cr, cg, cb = sh_color(deg, sh[i], vx / vn, vy / vn, vz / vn)
-        fo[r, F_R] = max(cr, 0.0)
-        fo[r, F_G] = max(cg, 0.0)
-        fo[r, F_BL] = max(cb, 0.0)
-    if not normals:
-        return
-    nx, ny, nz = normal_w[i, 0], normal_w[i, 1], normal_w[i, 2]
-    cnx = W[0] * nx + W[1] * ny + W[2] * nz
-    cny = W[3] * nx + W[4] * ny + W[5] * nz
-    cnz = W[6] * nx + W[7] * ny + W[8] * nz
-    f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
-    fo[r, F_NX] = f * cnx
-    fo[r, F_NY] = f * cny
-    fo[r, F_NZ] = f * cnz
+def static_chunk(r0, m, sel, means, cov, opacity, cut, normal_w, rgb, shf, ks, k3, deg, W, tw,
+                 campos, cam, lims, width, height, near, far, cov_alpha, fo, box, radii, normals,
+                 buf, shp):
+    """Rows r0 .. r0+m-1 (m <= PCH) of project_static: gather Gaussians sel[r] into lanes,
+    project them (`static_lanes`), scatter the rows. normals=False leaves fo's normal
+    columns unwritten."""
+    for jj in range(m):
+        i = sel[r0 + jj]
+        j = U64(jj)
+        buf[at(PS_MX, j)] = means[i, 0]
+        buf[at(PS_MY, j)] = means[i, 1]
+        buf[at(PS_MZ, j)] = means[i, 2]
+        for q in range(6):
+            buf[at(PS_S00 + q, j)] = cov[i, q]
+        buf[at(PS_CUT, j)] = cut[i]
+        for q in range(3):
+            buf[at(PS_NX + q, j)] = normal_w[i, q]
+            buf[at(PS_R + q, j)] = rgb[i, q]
+        if deg > 0:
+            gather_sh(shp, shf, i * ks, k3, j)
+    static_lanes(buf, shp, m, deg, W, tw, campos, cam, lims, np.float64(width),
+                 np.float64(height), near, far, cov_alpha)
+    for jj in range(m):
+        r = r0 + jj
+        i = sel[r]
+        j = U64(jj)
+        box[r, 0] = np.int32(buf[at(PS_J0, j)])
+        box[r, 1] = np.int32(buf[at(PS_I0, j)])
+        box[r, 2] = np.int32(buf[at(PS_J1, j)])
+        box[r, 3] = np.int32(buf[at(PS_I1, j)])
+        rad = buf[at(PS_RAD, j)]
+        radii[r] = np.int32(rad)
+        if rad == 0.0:
+            continue
+        fo[r, F_X] = buf[at(PS_X, j)]
+        fo[r, F_Y] = buf[at(PS_Y, j)]
+        fo[r, F_A] = buf[at(PS_A, j)]
+        fo[r, F_B] = buf[at(PS_B, j)]
+        fo[r, F_C] = buf[at(PS_C, j)]
+        fo[r, F_O] = opacity[i]
+        fo[r, F_CUT] = cut[i]
+        fo[r, F_Z] = buf[at(PS_Z, j)]
+        fo[r, F_R] = buf[at(PS_CR, j)]
+        fo[r, F_G] = buf[at(PS_CG, j)]
+        fo[r, F_BL] = buf[at(PS_CB, j)]
+        if normals:
+            fo[r, F_NX] = buf[at(PS_ONX, j)]
+            fo[r, F_NY] = buf[at(PS_ONY, j)]
+            fo[r, F_NZ] = buf[at(PS_ONZ, j)]
 
 
 @njit(parallel=True, cache=True)
@@ -152,17 +128,22 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
     Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
+    shf = sh.reshape(-1)
+    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
     n_items = n_chunks(n_sel, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
+        buf = np.empty(PS * PCH, np.float64)
+        shp = np.zeros(SH_PLANES * PCH, np.float32)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:
                 break
-            for r in range(ch * CHUNK, min(n_sel, (ch + 1) * CHUNK)):
-                _static_one(r, sel, means, cov, opacity, cut, normal_w, rgb, sh, deg, W, tw,
-                            campos, cam, lims, width, height, near, far, cov_alpha, fo, box,
-                            radii)
+            end = min(n_sel, (ch + 1) * CHUNK)
+            for r0 in range(ch * CHUNK, end, PCH):
+                static_chunk(r0, min(PCH, end - r0), sel, means, cov, opacity, cut, normal_w,
+                             rgb, shf, ks, k3, deg, W, tw, campos, cam, lims, width, height,
+                             near, far, cov_alpha, fo, box, radii, True, buf, shp)
 
 
 @njit(cache=True)
