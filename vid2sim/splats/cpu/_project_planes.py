@@ -1,5 +1,6 @@
-"""The per-splat projection and its VJP over chunks of PCH splats held as planes, so that the
-arithmetic vectorises (float64 lanes) instead of running one splat at a time.
+"""The per-splat projection and its VJP (training, `forward_lanes` / `backward_lanes`) and the
+env path's projection of cached Gaussians (`static_lanes`) over chunks of PCH splats held as
+planes, so that the arithmetic vectorises (float64 lanes) instead of running one splat at a time.
 
 Each chunk runs in three passes: a scalar gather of the splat's inputs (the libm calls, exp and
 log, happen here: without a vector math library LLVM would not vectorise a loop that calls
