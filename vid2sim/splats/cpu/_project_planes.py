@@ -25,12 +25,15 @@ U64 = np.uint64
 PCH = 64  # splats per chunk: the vector loop's trip count
 SH_PLANES = 48  # 16 coefficients x 3 channels; planes past the active degree hold zeros
 
-# float64 planes of the forward's buffer [PF * PCH]: inputs (planes 0-10 the same as the
-# backward's: `gather_model`), then outputs
-(PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF_O, PF_CUT, PF_K,
- PF_X, PF_Y, PF_A, PF_B, PF_C, PF_Z, PF_R, PF_G, PF_BL, PF_NX, PF_NY, PF_NZ,
- PF_J0, PF_I0, PF_J1, PF_I1, PF_RAD) = range(30)
-PF = 30
+# Output planes of both forward projections (training and env path), after their inputs:
+# what `scatter_rows` writes into the callers' fo / box / radii rows.
+(Q_X, Q_Y, Q_A, Q_B, Q_C, Q_O, Q_CUT, Q_Z, Q_R, Q_G, Q_BL, Q_NX, Q_NY, Q_NZ,
+ Q_J0, Q_I0, Q_J1, Q_I1, Q_RAD) = range(17, 36)
+NQ = 36  # planes of a forward buffer [NQ * PCH] float64
+
+# input planes of the training forward (planes 0-10 the same as the backward's: `gather_model`)
+(PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF_O, PF_CUT,
+ PF_K) = range(13)
 
 # float64 planes of the backward's buffer [PB * PCH]: inputs (model values and the 2D
 # gradient columns), then outputs
@@ -177,72 +180,109 @@ def axis_column(R, k):
             (R[6] if k == 0.0 else (R[7] if k == 1.0 else R[8])))
 
 
+@njit(cache=True, inline="always")
+def to_camera(W, tw, mx, my, mz, near, far):
+    """A world point in the camera frame (tx, ty, tz) and whether its depth is in [near, far]
+    (tz is then 1 where it is not, so that lanes divide safely)."""
+    tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
+    ok = (tz >= near) & (tz <= far)
+    tz = tz if ok else 1.0
+    tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
+    ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+    return tx, ty, tz, ok
+
+
+@njit(cache=True, inline="always")
+def conic_ok(A, B, C, det, cov_alpha, lim_cov):
+    """Sigma2d is invertible (det > 0) and, with covariance culling on (cov_alpha > 0), no
+    entry exceeds lim_cov."""
+    return (det > 0.0) & ((cov_alpha <= 0.0) | (max(abs(A), abs(B), abs(C)) <= lim_cov))
+
+
+@njit(cache=True, inline="always")
+def radius_box(A, B, C, px, py, cut, width, height):
+    """Pixel radius ceil(3 sqrt(lambda_max)) of Sigma2d [[A, B], [B, C]] at (px, py), whether
+    that radius reaches the image, and the inclusive pixel box (j0, i0, j1, i1, as floats) of
+    the centres (j + 0.5) inside the sigma <= cut ellipse's extent, with whether it is empty."""
+    lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
+    rad = np.ceil(3.0 * math.sqrt(max(lam, 0.0)))
+    onscreen = (px + rad > 0.0) & (px - rad < width) & (py + rad > 0.0) & (py - rad < height)
+    ex = math.sqrt(max(2.0 * cut * A, 0.0)) * 1.001 + 1e-3
+    ey = math.sqrt(max(2.0 * cut * C, 0.0)) * 1.001 + 1e-3
+    j0 = max(np.ceil(px - ex - 0.5), 0.0)
+    j1 = min(np.floor(px + ex - 0.5), width - 1.0)
+    i0 = max(np.ceil(py - ey - 0.5), 0.0)
+    i1 = min(np.floor(py + ey - 0.5), height - 1.0)
+    return rad, onscreen, j0, i0, j1, i1, (cut <= 0.0) | (j0 > j1) | (i0 > i1)
+
+
+@njit(cache=True, inline="always")
+def camera_normal(W, nx, ny, nz, tx, ty, tz):
+    """A world normal in the camera frame (W n) and the sign that turns it to face the camera."""
+    cnx = W[0] * nx + W[1] * ny + W[2] * nz
+    cny = W[3] * nx + W[4] * ny + W[5] * nz
+    cnz = W[6] * nx + W[7] * ny + W[8] * nz
+    return cnx, cny, cnz, (-1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0)
+
+
+@njit(cache=True, inline="always")
+def put_outputs(buf, j, ok, px, py, A, B, C, det, o, cut, tz, cr, cg, cb, nx, ny, nz, width,
+                height):
+    """Lane j's output planes (Q_*) for a splat at (px, py) with Sigma2d (A, B, C): the conic,
+    colour, camera normal, the pixel box (empty where culled) and the radius (0 where culled,
+    ok False or off the image; the other outputs are then meaningless)."""
+    r, onscreen, j0, i0, j1, i1, empty = radius_box(A, B, C, px, py, cut, width, height)
+    ok = ok & onscreen
+    empty = empty | ~ok
+    idet = 1.0 / (det if ok else 1.0)
+    buf[at(Q_X, j)] = px
+    buf[at(Q_Y, j)] = py
+    buf[at(Q_A, j)] = C * idet
+    buf[at(Q_B, j)] = -B * idet
+    buf[at(Q_C, j)] = A * idet
+    buf[at(Q_O, j)] = o
+    buf[at(Q_CUT, j)] = cut
+    buf[at(Q_Z, j)] = tz
+    buf[at(Q_R, j)] = cr
+    buf[at(Q_G, j)] = cg
+    buf[at(Q_BL, j)] = cb
+    buf[at(Q_NX, j)] = nx
+    buf[at(Q_NY, j)] = ny
+    buf[at(Q_NZ, j)] = nz
+    buf[at(Q_J0, j)] = 0.0 if empty else j0
+    buf[at(Q_I0, j)] = 0.0 if empty else i0
+    buf[at(Q_J1, j)] = -1.0 if empty else j1
+    buf[at(Q_I1, j)] = -1.0 if empty else i1
+    buf[at(Q_RAD, j)] = max(r, 1.0) if ok else 0.0
+
+
 @njit(cache=True, error_model="numpy")
 def forward_lanes(buf, shp, m, W, tw, campos, cam, lims, width, height, near, far, cov_alpha):
-    """Forward of lanes 0..m-1: the PF_X .. PF_RAD planes from the input planes.
-    PF_RAD is the pixel radius (>= 1) or 0 where the splat is culled (then the other outputs
-    are meaningless); an empty box (j1 < j0) where the splat's cut-off ellipse reaches no
-    pixel centre."""
+    """Forward of lanes 0..m-1: the output planes (Q_*) from the PF_* input planes."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lim_cov = cov_alpha * height * width
     for jj in range(m):
         j = U64(jj)
         mx, my, mz = buf[at(PF_MX, j)], buf[at(PF_MY, j)], buf[at(PF_MZ, j)]
-        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-        ok = (tz >= near) & (tz <= far)
-        tz = tz if ok else 1.0
-        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+        tx, ty, tz, ok = to_camera(W, tw, mx, my, mz, near, far)
         _w, _x, _y, _z, _n, R = quat_rot(buf[at(PF_QW, j)], buf[at(PF_QX, j)],
                                          buf[at(PF_QY, j)], buf[at(PF_QZ, j)])
         S3, _L = cov3d(R, buf[at(PF_SX, j)], buf[at(PF_SY, j)], buf[at(PF_SZ, j)])
         j00, j02, j11, j12, _txc, _tyc, _cx, _cy = clamped_jacobian(tx, ty, tz, fx, fy, lims)
         A, B, C = sigma2d(camera_cov(W, S3), j00, j02, j11, j12)
         det = A * C - B * B
-        ok = ok & (det > 0.0)
-        ok = ok & ((cov_alpha <= 0.0) | (max(abs(A), abs(B), abs(C)) <= lim_cov))
+        ok = ok & conic_ok(A, B, C, det, cov_alpha, lim_cov)
         px = fx * tx / tz + cx
         py = fy * ty / tz + cy
-        lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
-        r = math.ceil(3.0 * math.sqrt(max(lam, 0.0)))
-        ok = ok & (px + r > 0.0) & (px - r < width) & (py + r > 0.0) & (py - r < height)
-        idet = 1.0 / (det if ok else 1.0)
-        # pixel box (inclusive) of the sigma <= cut ellipse's extent (centres j + 0.5)
-        cut = buf[at(PF_CUT, j)]
-        ca = max(cut, 0.0)
-        ex = math.sqrt(2.0 * ca * max(A, 0.0)) * 1.001 + 1e-3
-        ey = math.sqrt(2.0 * ca * max(C, 0.0)) * 1.001 + 1e-3
-        j0 = max(math.ceil(px - ex - 0.5), 0.0)
-        j1 = min(math.floor(px + ex - 0.5), width - 1.0)
-        i0 = max(math.ceil(py - ey - 0.5), 0.0)
-        i1 = min(math.floor(py + ey - 0.5), height - 1.0)
-        empty = (cut <= 0.0) | (j0 > j1) | (i0 > i1)
         vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
         vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
         cr, cg, cb = sh_color_lane(shp, j, vx / vn, vy / vn, vz / vn)
         # normal: the smallest scale's axis in the camera frame, facing the camera
         nx, ny, nz = axis_column(R, buf[at(PF_K, j)])
-        cnx = W[0] * nx + W[1] * ny + W[2] * nz
-        cny = W[3] * nx + W[4] * ny + W[5] * nz
-        cnz = W[6] * nx + W[7] * ny + W[8] * nz
-        f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
-        buf[at(PF_X, j)] = px
-        buf[at(PF_Y, j)] = py
-        buf[at(PF_A, j)] = C * idet
-        buf[at(PF_B, j)] = -B * idet
-        buf[at(PF_C, j)] = A * idet
-        buf[at(PF_Z, j)] = tz
-        buf[at(PF_R, j)] = max(cr, 0.0)
-        buf[at(PF_G, j)] = max(cg, 0.0)
-        buf[at(PF_BL, j)] = max(cb, 0.0)
-        buf[at(PF_NX, j)] = f * cnx
-        buf[at(PF_NY, j)] = f * cny
-        buf[at(PF_NZ, j)] = f * cnz
-        buf[at(PF_J0, j)] = 0.0 if empty else j0
-        buf[at(PF_I0, j)] = 0.0 if empty else i0
-        buf[at(PF_J1, j)] = -1.0 if empty else j1
-        buf[at(PF_I1, j)] = -1.0 if empty else i1
-        buf[at(PF_RAD, j)] = max(r, 1.0) if ok else 0.0
+        cnx, cny, cnz, f = camera_normal(W, nx, ny, nz, tx, ty, tz)
+        put_outputs(buf, j, ok, px, py, A, B, C, det, buf[at(PF_O, j)], buf[at(PF_CUT, j)], tz,
+                    max(cr, 0.0), max(cg, 0.0), max(cb, 0.0), f * cnx, f * cny, f * cnz,
+                    width, height)
 
 
 @njit(cache=True, error_model="numpy")
@@ -377,34 +417,25 @@ assert (PF_MX, PF_MY, PF_MZ, PF_QW, PF_QX, PF_QY, PF_QZ, PF_SX, PF_SY, PF_SZ, PF
 assert (PB_MX, PB_MY, PB_MZ, PB_QW, PB_QX, PB_QY, PB_QZ, PB_SX, PB_SY, PB_SZ, PB_O) == tuple(range(11))
 
 
-# float64 planes of the env path's buffer [PS * PCH] (cached world covariances): inputs, then
-# outputs
+# input planes of the env path's forward (cached world covariances, normals and colours)
 (PS_MX, PS_MY, PS_MZ, PS_S00, PS_S01, PS_S02, PS_S11, PS_S12, PS_S22, PS_CUT, PS_NX, PS_NY,
- PS_NZ, PS_R, PS_G, PS_BL,
- PS_X, PS_Y, PS_A, PS_B, PS_C, PS_Z, PS_CR, PS_CG, PS_CB, PS_ONX, PS_ONY, PS_ONZ,
- PS_J0, PS_I0, PS_J1, PS_I1, PS_RAD) = range(33)
-PS = 33
+ PS_NZ, PS_R, PS_G, PS_BL, PS_O) = range(17)
 
 
 @njit(cache=True, error_model="numpy")
 def static_lanes(buf, shp, m, deg, W, tw, campos, cam, lims, width, height, near, far,
                  cov_alpha):
     """The env path's projection (`env_scene_kernels.project_static`) of lanes 0..m-1: the
-    same arithmetic in the same order as its one-splat form, so the same bits, with the
-    culling tests as selects. PS_RAD is the pixel radius (>= 1) or 0 where culled; the box
-    planes hold an empty box (0, 0, -1, -1) where the splat is culled or reaches no pixel
-    centre. deg 0 takes the cached colours (PS_R .. PS_BL) unclamped."""
+    output planes (Q_*) from the PS_* input planes, with the same arithmetic in the same order
+    as its one-splat form had (the same bits) and the culling tests as selects. deg 0 takes
+    the cached colours (PS_R .. PS_BL) unclamped."""
     fx, fy, cx, cy = cam[0], cam[1], cam[2], cam[3]
     lxp, lxn, lyp, lyn = lims
     lim_cov = cov_alpha * height * width
     for jj in range(m):
         j = U64(jj)
         mx, my, mz = buf[at(PS_MX, j)], buf[at(PS_MY, j)], buf[at(PS_MZ, j)]
-        tz = W[6] * mx + W[7] * my + W[8] * mz + tw[2]
-        ok = (tz >= near) & (tz <= far)
-        tz = tz if ok else 1.0
-        tx = W[0] * mx + W[1] * my + W[2] * mz + tw[0]
-        ty = W[3] * mx + W[4] * my + W[5] * mz + tw[1]
+        tx, ty, tz, ok = to_camera(W, tw, mx, my, mz, near, far)
         iz = 1.0 / tz
         rx = min(max(tx * iz, -lxn), lxp)
         ry = min(max(ty * iz, -lyn), lyp)
@@ -416,44 +447,17 @@ def static_lanes(buf, shp, m, deg, W, tw, campos, cam, lims, width, height, near
                              buf[at(PS_S02, j)], buf[at(PS_S11, j)], buf[at(PS_S12, j)],
                              buf[at(PS_S22, j)])
         det = A * C - B * B
-        ok = ok & (det > 0.0)
-        ok = ok & ((cov_alpha <= 0.0) | (max(abs(A), abs(B), abs(C)) <= lim_cov))
+        ok = ok & conic_ok(A, B, C, det, cov_alpha, lim_cov)
         px = fx * tx * iz + cx
         py = fy * ty * iz + cy
-        lam = 0.5 * (A + C) + math.sqrt(max(0.25 * (A - C) * (A - C) + B * B, 0.0))
-        rad = np.ceil(3.0 * math.sqrt(max(lam, 0.0)))
-        ok = ok & (px + rad > 0.0) & (px - rad < width) & (py + rad > 0.0) & (py - rad < height)
-        idet = 1.0 / (det if ok else 1.0)
-        ct = buf[at(PS_CUT, j)]
-        ex = math.sqrt(max(2.0 * ct * A, 0.0)) * 1.001 + 1e-3
-        ey = math.sqrt(max(2.0 * ct * C, 0.0)) * 1.001 + 1e-3
-        j0 = max(np.ceil(px - ex - 0.5), 0.0)
-        j1 = min(np.floor(px + ex - 0.5), width - 1.0)
-        i0 = max(np.ceil(py - ey - 0.5), 0.0)
-        i1 = min(np.floor(py + ey - 0.5), height - 1.0)
-        empty = ~ok | (ct <= 0.0) | (j0 > j1) | (i0 > i1)
         vx, vy, vz = mx - campos[0], my - campos[1], mz - campos[2]
         vn = max(math.sqrt(vx * vx + vy * vy + vz * vz), 1e-12)
         cr, cg, cb = sh_color_lane(shp, j, vx / vn, vy / vn, vz / vn)
-        nx, ny, nz = buf[at(PS_NX, j)], buf[at(PS_NY, j)], buf[at(PS_NZ, j)]
-        cnx = W[0] * nx + W[1] * ny + W[2] * nz
-        cny = W[3] * nx + W[4] * ny + W[5] * nz
-        cnz = W[6] * nx + W[7] * ny + W[8] * nz
-        f = -1.0 if cnx * tx + cny * ty + cnz * tz > 0.0 else 1.0
-        buf[at(PS_X, j)] = px
-        buf[at(PS_Y, j)] = py
-        buf[at(PS_A, j)] = C * idet
-        buf[at(PS_B, j)] = -B * idet
-        buf[at(PS_C, j)] = A * idet
-        buf[at(PS_Z, j)] = tz
-        buf[at(PS_CR, j)] = buf[at(PS_R, j)] if deg == 0 else max(cr, 0.0)
-        buf[at(PS_CG, j)] = buf[at(PS_G, j)] if deg == 0 else max(cg, 0.0)
-        buf[at(PS_CB, j)] = buf[at(PS_BL, j)] if deg == 0 else max(cb, 0.0)
-        buf[at(PS_ONX, j)] = f * cnx
-        buf[at(PS_ONY, j)] = f * cny
-        buf[at(PS_ONZ, j)] = f * cnz
-        buf[at(PS_J0, j)] = 0.0 if empty else j0
-        buf[at(PS_I0, j)] = 0.0 if empty else i0
-        buf[at(PS_J1, j)] = -1.0 if empty else j1
-        buf[at(PS_I1, j)] = -1.0 if empty else i1
-        buf[at(PS_RAD, j)] = max(rad, 1.0) if ok else 0.0
+        cnx, cny, cnz, f = camera_normal(W, buf[at(PS_NX, j)], buf[at(PS_NY, j)],
+                                         buf[at(PS_NZ, j)], tx, ty, tz)
+        put_outputs(buf, j, ok, px, py, A, B, C, det, buf[at(PS_O, j)], buf[at(PS_CUT, j)], tz,
+                    buf[at(PS_R, j)] if deg == 0 else max(cr, 0.0),
+                    buf[at(PS_G, j)] if deg == 0 else max(cg, 0.0),
+                    buf[at(PS_BL, j)] if deg == 0 else max(cb, 0.0), f * cnx, f * cny, f * cnz,
+                    width, height)
+

@@ -10,13 +10,10 @@ import numpy as np
 from numba import njit, prange
 
 from ._geom import jac_limits
-from ._project_planes import (PCH, PS, PS_A, PS_B, PS_C, PS_CB, PS_CG, PS_CR, PS_CUT, PS_I0,
-                              PS_I1, PS_J0, PS_J1, PS_MX, PS_MY, PS_MZ, PS_NX, PS_ONX, PS_ONY,
-                              PS_ONZ, PS_R, PS_RAD, PS_S00, PS_X, PS_Y, PS_Z, SH_PLANES, U64, at,
-                              gather_sh, static_lanes)
+from ._project_planes import (NQ, PCH, PS_CUT, PS_MX, PS_MY, PS_MZ, PS_NX, PS_O, PS_R, PS_S00,
+                              SH_PLANES, U64, at, gather_sh, static_lanes)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
-from .project import (F_A, F_B, F_BL, F_C, F_CUT, F_G, F_NX, F_NY, F_NZ, F_O, F_R, F_X, F_Y,
-                      F_Z, sigma_cut, view_parts)
+from .project import F_X, F_Y, scatter_rows, sigma_cut, view_parts
 
 EDGE_MARGIN_PX = 3.0  # low-pass dilation (<= 1.65 px at 3 sigma) + pixel-centre rounding
 
@@ -83,6 +80,7 @@ def static_chunk(r0, m, sel, means, cov, opacity, cut, normal_w, rgb, shf, ks, k
         for q in range(6):
             buf[at(PS_S00 + q, j)] = cov[i, q]
         buf[at(PS_CUT, j)] = cut[i]
+        buf[at(PS_O, j)] = opacity[i]
         for q in range(3):
             buf[at(PS_NX + q, j)] = normal_w[i, q]
             buf[at(PS_R + q, j)] = rgb[i, q]
@@ -90,33 +88,7 @@ def static_chunk(r0, m, sel, means, cov, opacity, cut, normal_w, rgb, shf, ks, k
             gather_sh(shp, shf, i * ks, k3, j)
     static_lanes(buf, shp, m, deg, W, tw, campos, cam, lims, np.float64(width),
                  np.float64(height), near, far, cov_alpha)
-    for jj in range(m):
-        r = r0 + jj
-        i = sel[r]
-        j = U64(jj)
-        box[r, 0] = np.int32(buf[at(PS_J0, j)])
-        box[r, 1] = np.int32(buf[at(PS_I0, j)])
-        box[r, 2] = np.int32(buf[at(PS_J1, j)])
-        box[r, 3] = np.int32(buf[at(PS_I1, j)])
-        rad = buf[at(PS_RAD, j)]
-        radii[r] = np.int32(rad)
-        if rad == 0.0:
-            continue
-        fo[r, F_X] = buf[at(PS_X, j)]
-        fo[r, F_Y] = buf[at(PS_Y, j)]
-        fo[r, F_A] = buf[at(PS_A, j)]
-        fo[r, F_B] = buf[at(PS_B, j)]
-        fo[r, F_C] = buf[at(PS_C, j)]
-        fo[r, F_O] = opacity[i]
-        fo[r, F_CUT] = cut[i]
-        fo[r, F_Z] = buf[at(PS_Z, j)]
-        fo[r, F_R] = buf[at(PS_CR, j)]
-        fo[r, F_G] = buf[at(PS_CG, j)]
-        fo[r, F_BL] = buf[at(PS_CB, j)]
-        if normals:
-            fo[r, F_NX] = buf[at(PS_ONX, j)]
-            fo[r, F_NY] = buf[at(PS_ONY, j)]
-            fo[r, F_NZ] = buf[at(PS_ONZ, j)]
+    scatter_rows(buf, m, r0, fo, box, radii, normals)
 
 
 @njit(parallel=True, cache=True)
@@ -133,7 +105,7 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
     n_items = n_chunks(n_sel, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
-        buf = np.empty(PS * PCH, np.float64)
+        buf = np.empty(NQ * PCH, np.float64)
         shp = np.zeros(SH_PLANES * PCH, np.float32)
         while True:
             ch = fetch_add(nxt, 1)

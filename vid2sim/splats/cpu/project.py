@@ -14,11 +14,10 @@ import numpy as np
 from numba import njit, prange
 
 from ._geom import jac_limits
-from ._project_planes import (PB, PB_CB, PB_CG, PB_CR, PB_DL0, PB_DL1, PB_DL2, PB_DLOGIT,
+from ._project_planes import (NQ, PB, PB_CB, PB_CG, PB_CR, PB_DL0, PB_DL1, PB_DL2, PB_DLOGIT,
                               PB_DMX, PB_DMY, PB_DMZ, PB_DQW, PB_DQX, PB_DQY, PB_DQZ, PB_DX,
-                              PB_DY, PB_DZ, PB_GMX, PB_K, PCH, PF, PF_A, PF_B, PF_BL, PF_C,
-                              PF_CUT, PF_G, PF_I0, PF_I1, PF_J0, PF_J1, PF_K, PF_NX, PF_NY,
-                              PF_NZ, PF_O, PF_R, PF_RAD, PF_X, PF_Y, PF_Z, SH_PLANES, U64, at,
+                              PB_DY, PB_DZ, PB_GMX, PB_K, PCH, PF_CUT, PF_K, PF_O, Q_I0, Q_I1,
+                              Q_J0, Q_J1, Q_NX, Q_NY, Q_NZ, Q_RAD, Q_X, SH_PLANES, U64, at,
                               backward_lanes, forward_lanes, gather_model, gather_sh,
                               sh_grad_row, smallest_axis)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
@@ -30,6 +29,29 @@ CUT_MARGIN = 1e-3  # slack on the per-splat sigma cutoff used only to bound tile
 # Columns of the per-candidate float output `fo` [C, NF].
 F_X, F_Y, F_A, F_B, F_C, F_O, F_CUT, F_Z, F_R, F_G, F_BL, F_NX, F_NY, F_NZ = range(14)
 NF = 16
+
+
+@njit(cache=True, inline="always")
+def scatter_rows(buf, m, r0, fo, box, radii, normals):
+    """Rows r0 .. r0+m-1 of fo [R, NF] (culled rows left as they were; the normal columns only
+    with normals), box [R, 4] (empty where culled) and radii [R] from the output planes."""
+    for jj in range(m):
+        r = r0 + jj
+        j = U64(jj)
+        box[r, 0] = np.int32(buf[at(Q_J0, j)])
+        box[r, 1] = np.int32(buf[at(Q_I0, j)])
+        box[r, 2] = np.int32(buf[at(Q_J1, j)])
+        box[r, 3] = np.int32(buf[at(Q_I1, j)])
+        rad = buf[at(Q_RAD, j)]
+        radii[r] = np.int32(rad)
+        if rad == 0.0:
+            continue
+        for q in range(F_NX):  # F_X .. F_BL, the same order as Q_X .. Q_BL
+            fo[r, q] = buf[at(Q_X + q, j)]
+        if normals:
+            fo[r, F_NX] = buf[at(Q_NX, j)]
+            fo[r, F_NY] = buf[at(Q_NY, j)]
+            fo[r, F_NZ] = buf[at(Q_NZ, j)]
 
 
 def camera_arrays(camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -70,31 +92,7 @@ def _forward_chunk(c0, m, idx, means, quats, log_scales, logits, shf, ks, k3, W,
         gather_sh(shp, shf, i * ks, k3, j)
     forward_lanes(buf, shp, m, W, tw, campos, cam, lims, np.float64(width),
                   np.float64(height), near, far, cov_alpha)
-    for jj in range(m):
-        c = c0 + jj
-        j = U64(jj)
-        rad = buf[at(PF_RAD, j)]
-        radii[c] = np.int32(rad)
-        if rad == 0.0:
-            continue
-        fo[c, F_X] = buf[at(PF_X, j)]
-        fo[c, F_Y] = buf[at(PF_Y, j)]
-        fo[c, F_A] = buf[at(PF_A, j)]
-        fo[c, F_B] = buf[at(PF_B, j)]
-        fo[c, F_C] = buf[at(PF_C, j)]
-        fo[c, F_O] = buf[at(PF_O, j)]
-        fo[c, F_CUT] = buf[at(PF_CUT, j)]
-        fo[c, F_Z] = buf[at(PF_Z, j)]
-        fo[c, F_R] = buf[at(PF_R, j)]
-        fo[c, F_G] = buf[at(PF_G, j)]
-        fo[c, F_BL] = buf[at(PF_BL, j)]
-        fo[c, F_NX] = buf[at(PF_NX, j)]
-        fo[c, F_NY] = buf[at(PF_NY, j)]
-        fo[c, F_NZ] = buf[at(PF_NZ, j)]
-        box[c, 0] = np.int32(buf[at(PF_J0, j)])
-        box[c, 1] = np.int32(buf[at(PF_I0, j)])
-        box[c, 2] = np.int32(buf[at(PF_J1, j)])
-        box[c, 3] = np.int32(buf[at(PF_I1, j)])
+    scatter_rows(buf, m, c0, fo, box, radii, True)
 
 
 @njit(parallel=True, cache=True)
@@ -113,7 +111,7 @@ def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos
     n_items = n_chunks(n, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
-        buf = np.empty(PF * PCH, np.float64)
+        buf = np.empty(NQ * PCH, np.float64)
         shp = np.zeros(SH_PLANES * PCH, np.float32)
         while True:
             ch = fetch_add(nxt, 1)
