@@ -100,8 +100,8 @@ def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos
                     width, height, near, far, cov_alpha, fo, box, radii, n_workers=1):
     """Project candidates idx [C] -> fo [C, NF] float32, box [C, 4] int32 (pixel box
     j0, i0, j1, i1 inclusive; empty, j1 < j0, when the splat reaches no pixel centre),
-    radii [C] int32 (0 = culled; fo and box rows of culled candidates are left as they
-    were). sh [N, K, 3] C-contiguous. n_workers draw chunks of candidates from a shared
+    radii [C] int32 (0 = culled; the fo rows of culled candidates are left as they were,
+    their boxes empty). sh [N, K, 3] C-contiguous. n_workers draw chunks of candidates from a shared
     counter (dynamic balance); each projects PCH candidates at a time in vector lanes."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
