@@ -1,6 +1,7 @@
 """Splat engine benchmark: cpu backend speed, cpu vs torch, and the static env path.
 
 Run: .venv/bin/python benchmarks/splats.py [--quick]
+     .venv/bin/python benchmarks/splats.py --kernels REPS   (each kernel of the training step alone)
 Prints measured figures only (no assertions). Single-thread rows also give CPU time
 (process_time), which is less distorted than wall time on a shared machine.
 
@@ -134,6 +135,68 @@ def backward_table(run: Run, n: int, res: tuple[int, int]) -> dict:
     return res_ms
 
 
+def cpu_ms(fn, reps: int) -> tuple[float, float]:
+    """(median, min) process-CPU ms of fn over reps calls, after one warm-up call."""
+    fn()
+    ts = []
+    for _ in range(reps):
+        c0 = time.process_time()
+        fn()
+        ts.append(time.process_time() - c0)
+    return 1e3 * float(np.median(ts)), 1e3 * min(ts)
+
+
+def kernel_table(run: Run, n: int, res: tuple[int, int], reps: int) -> None:
+    """Each kernel of the training step timed alone on 1 thread (the forward+backward case's
+    scene, camera and inputs; the backward kernels get random per-pixel and per-splat
+    gradients), then the whole step: where a change to one kernel shows without the others'
+    noise."""
+    from vid2sim.splats.cpu import train_rasterize as tr
+    from vid2sim.splats.cpu.binning import sort_and_bin
+    from vid2sim.splats.cpu.composite import kernel_tile, raster_backward
+    from vid2sim.splats.cpu.project import NF, camera_arrays, project_backward, project_forward
+
+    w, h = res
+    model = random_blob_scene(n, seed=2)
+    cam, st = front_camera(w, h), RasterSettings(w, h)
+    numba.set_num_threads(1)
+    arrs = [tr._np32(t) for t in params(model)]
+    deg = min(st.active_sh_degree, int(round(arrs[4].shape[1] ** 0.5)) - 1)
+    view, campos, camv = camera_arrays(cam)
+    idx = np.arange(n, dtype=np.int64)
+    fo, box, radii = np.empty((n, NF), np.float32), np.empty((n, 4), np.int32), np.empty(n, np.int32)
+    fr = tr.forward_frame(*arrs, deg, cam, st)
+    tile = kernel_tile(st.tile_size)
+    tiles_x = (w + tile - 1) // tile
+    n_tiles = tiles_x * ((h + tile - 1) // tile)
+    rng = np.random.default_rng(0)
+    d_rgb, d_plane = rng.normal(size=(h, w, 3)).astype(np.float32), rng.normal(size=(h, w)).astype(np.float32)
+    zeros3, zeros = np.zeros((h, w, 3), np.float32), np.zeros((h, w), np.float32)
+    g2 = rng.normal(size=(fr.ids.shape[0], 16)).astype(np.float32)
+    grads = [np.zeros_like(a) for a in arrs]
+    g2d, ab = np.zeros((n, 2), np.float32), np.zeros((n, 2), np.float32)
+    kernels = {
+        "projection": lambda: project_forward(idx, *arrs, deg, view, campos, camv, w, h, st.near, st.far, -1.0,
+                                              fo, box, radii, 1),
+        "sort and bin": lambda: sort_and_bin(fr.fo, fr.box, fr.fo.shape[0], tile, tiles_x, n_tiles, True, 1),
+        "sort, bin and forward composite": lambda: tr.composite(fr.fo, fr.box, w, h, tile),
+        "backward composite": lambda: raster_backward(
+            fr.fo, fr.box, fr.tile_offsets, fr.inst, fr.row_start, fr.pos, fr.ids.shape[0], w, h, tile, fr.T_final,
+            fr.n_contrib, fr.med_idx, d_rgb, d_plane, d_plane, zeros3, zeros, 1),
+        "projection VJP": lambda: project_backward(fr.ids, *arrs, deg, view, campos, camv, w, h, g2, *grads, g2d,
+                                                   ab, True, 1),
+    }
+    ps = leaf_params(model)
+    kernels["forward+backward step"] = lambda: fwd_bwd(rasterize, ps, cam, st)
+    case = f"kernels alone, {n} splats {w}x{h}, 1 thread"
+    print(f"\n## {case} (process CPU ms over {reps} calls: median / min)")
+    for name, fn in kernels.items():
+        med, best = cpu_ms(fn, reps)
+        run.record_all(case, {f"{name} median": med, f"{name} min": best}, "ms", {"threads": 1, "reps": reps})
+        print(f"  {name:34s} {med:8.1f} / {best:8.1f}")
+    numba.set_num_threads(ALL)
+
+
 def ratio_table(run: Run, n: int, res: tuple[int, int]) -> float:
     w, h = res
     model = random_blob_scene(n, seed=3)
@@ -208,12 +271,17 @@ def static_table(run: Run, n: int, res: tuple[int, int], quick: bool) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--quick", action="store_true", help="smaller sizes (smoke run)")
+    ap.add_argument("--kernels", type=int, default=0, metavar="REPS",
+                    help="only time each kernel of the forward+backward step alone, REPS calls each")
     add_run_args(ap)
     args = ap.parse_args()
     conf = {"numba_threads": ALL, "numba_threading_layer": numba.config.THREADING_LAYER,
             "torch_threads": torch.get_num_threads(), "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY")}
     with Run("splats", args, config=conf) as run:
-        bench(run, args.quick)
+        if args.kernels:
+            kernel_table(run, 100_000, (320, 180), args.kernels)
+        else:
+            bench(run, args.quick)
 
 
 def bench(run: Run, quick: bool) -> None:
