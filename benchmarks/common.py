@@ -89,13 +89,8 @@ ROW_KEYS = ("benchmark", "case", "metric", "value", "unit", "config")
 
 # ----------------------------------------------------------------------------- facts
 def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown CPU"
+    return (_cpuinfo_fields().get("model name") or platform.processor() or platform.machine()
+            or "unknown CPU")
 
 
 def _cpuinfo_fields() -> dict:

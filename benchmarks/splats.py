@@ -275,6 +275,8 @@ def main() -> None:
                     help="only time each kernel of the forward+backward step alone, REPS calls each")
     add_run_args(ap)
     args = ap.parse_args()
+    if args.kernels < 0:
+        ap.error(f"--kernels {args.kernels}: the calls per kernel must be >= 1 (0: the full benchmark)")
     conf = {"numba_threads": ALL, "numba_threading_layer": numba.config.THREADING_LAYER,
             "torch_threads": torch.get_num_threads(), "OMP_WAIT_POLICY": os.environ.get("OMP_WAIT_POLICY")}
     with Run("splats", args, config=conf) as run:

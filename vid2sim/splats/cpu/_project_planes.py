@@ -46,6 +46,20 @@ PB = 42
 
 
 @njit(cache=True, inline="always")
+def sh_layout(sh, deg):
+    """sh [N, K, 3] (C-contiguous) as a flat array, the values per splat (3K) and how many of
+    them the active degree reads (3 (deg + 1)^2): what `gather_sh` takes."""
+    return sh.reshape(-1), 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
+
+
+@njit(cache=True, inline="always")
+def lane_buffers(planes):
+    """A worker's chunk buffers: float64 [planes * PCH] and the SH planes, float32
+    [SH_PLANES * PCH], zeroed (planes past the active degree must stay zero)."""
+    return np.empty(planes * PCH, np.float64), np.zeros(SH_PLANES * PCH, np.float32)
+
+
+@njit(cache=True, inline="always")
 def at(k, j):
     """Offset of lane j in plane k."""
     return U64(k * PCH) + j

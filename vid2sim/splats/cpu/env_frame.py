@@ -30,7 +30,7 @@ from ._geom import jac_limits
 from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
 from .composite import A_MAX, A_MIN, ALL_BITS, HALF, ONE, S_MAX, T_MIN, ZERO
-from ._project_planes import NQ, PCH, SH_PLANES
+from ._project_planes import NQ, PCH, lane_buffers, sh_layout
 from .env_scene_kernels import cull_cells, static_chunk
 from .project import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
 
@@ -47,10 +47,8 @@ def project_serial(sel, n, means, cov, opacity, cut, normal_w, rgb, sh, deg, vie
     rows r < n of fo [R, NF], box [R, 4], radii [R]."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
-    shf = sh.reshape(-1)
-    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
-    buf = np.empty(NQ * PCH, np.float64)
-    shp = np.zeros(SH_PLANES * PCH, np.float32)
+    shf, ks, k3 = sh_layout(sh, deg)
+    buf, shp = lane_buffers(NQ)
     for r0 in range(0, n, PCH):
         static_chunk(r0, min(PCH, n - r0), sel, means, cov, opacity, cut, normal_w, rgb, shf, ks,
                      k3, deg, W, tw, campos, cam, lims, width, height, near, far, cov_alpha, fo,

@@ -11,7 +11,7 @@ from numba import njit, prange
 
 from ._geom import jac_limits
 from ._project_planes import (NQ, PCH, PS_CUT, PS_MX, PS_MY, PS_MZ, PS_NX, PS_O, PS_R, PS_S00,
-                              SH_PLANES, U64, at, gather_sh, static_lanes)
+                              U64, at, gather_sh, lane_buffers, sh_layout, static_lanes)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 from .project import F_X, F_Y, scatter_rows, sigma_cut, view_parts
 
@@ -100,13 +100,11 @@ def project_static(sel, n_sel, means, cov, opacity, cut, normal_w, rgb, sh, deg,
     Sigma2d = (J W) Sigma3d (J W)^T evaluated directly from the cached world covariance."""
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
-    shf = sh.reshape(-1)
-    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
+    shf, ks, k3 = sh_layout(sh, deg)
     n_items = n_chunks(n_sel, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
-        buf = np.empty(NQ * PCH, np.float64)
-        shp = np.zeros(SH_PLANES * PCH, np.float32)
+        buf, shp = lane_buffers(NQ)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:

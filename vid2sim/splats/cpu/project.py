@@ -17,9 +17,9 @@ from ._geom import jac_limits
 from ._project_planes import (NQ, PB, PB_CB, PB_CG, PB_CR, PB_DL0, PB_DL1, PB_DL2, PB_DLOGIT,
                               PB_DMX, PB_DMY, PB_DMZ, PB_DQW, PB_DQX, PB_DQY, PB_DQZ, PB_DX,
                               PB_DY, PB_DZ, PB_GMX, PB_K, PCH, PF_CUT, PF_K, PF_O, Q_I0, Q_I1,
-                              Q_J0, Q_J1, Q_NX, Q_NY, Q_NZ, Q_RAD, Q_X, SH_PLANES, U64, at,
+                              Q_J0, Q_J1, Q_NX, Q_NY, Q_NZ, Q_RAD, Q_X, U64, at,
                               backward_lanes, forward_lanes, gather_model, gather_sh,
-                              sh_grad_row, smallest_axis)
+                              lane_buffers, sh_grad_row, sh_layout, smallest_axis)
 from ._sched import CHUNK, fetch_add, n_chunks, new_counter
 
 SIGMA_CUTOFF = 4.5
@@ -106,13 +106,11 @@ def project_forward(idx, means, quats, log_scales, logits, sh, deg, view, campos
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     n = idx.shape[0]
-    shf = sh.reshape(-1)
-    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
+    shf, ks, k3 = sh_layout(sh, deg)
     n_items = n_chunks(n, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
-        buf = np.empty(NQ * PCH, np.float64)
-        shp = np.zeros(SH_PLANES * PCH, np.float32)
+        buf, shp = lane_buffers(NQ)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:
@@ -180,13 +178,11 @@ def project_backward(ids, means, quats, log_scales, logits, sh, deg, view, campo
     W, tw = view_parts(view)
     lims = jac_limits(cam[0], cam[1], cam[2], cam[3], width, height)
     n = ids.shape[0]
-    shf = sh.reshape(-1)
-    ks, k3 = 3 * sh.shape[1], 3 * (deg + 1) * (deg + 1)
+    shf, ks, k3 = sh_layout(sh, deg)
     n_items = n_chunks(n, CHUNK)
     nxt = new_counter()
     for _h in prange(n_workers):
-        buf = np.empty(PB * PCH, np.float64)
-        shp = np.zeros(SH_PLANES * PCH, np.float32)
+        buf, shp = lane_buffers(PB)
         while True:
             ch = fetch_add(nxt, 1)
             if ch >= n_items:
