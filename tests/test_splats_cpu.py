@@ -171,6 +171,24 @@ def test_threads_do_not_change_results():
         assert torch.equal(g1[k], g2[k]), k
 
 
+def test_tile_size_changes_no_image_and_gradients_by_rounding():
+    """Tiles of 1, 5, 16 and the default 32 px (RasterSettings.tile_size None) blend every
+    pixel's splats in the same order: equal images; the backward sums per-tile gradients, so
+    they differ by float rounding only. Tiles above MAX_TILE are capped to it."""
+    from vid2sim.splats.cpu.composite import CPU_TILE, MAX_TILE, kernel_tile
+
+    assert kernel_tile(None) == CPU_TILE and kernel_tile(10 * MAX_TILE) == MAX_TILE
+    scene, camera, weights = random_scene(8), random_camera(8, 70, 45), loss_weights(8, 45, 70)
+    o0, g0 = run(cpu_rasterize, scene, camera, RasterSettings(70, 45), weights)
+    assert float(o0.alpha.max()) > 0.5
+    for tile in (1, 5, 16, 4 * MAX_TILE):
+        o, g = run(cpu_rasterize, scene, camera, RasterSettings(70, 45, tile_size=tile), weights)
+        for k in IMAGES:
+            assert torch.equal(getattr(o, k), getattr(o0, k)), (tile, k)
+        for k in PARAMS:
+            assert_grad_close(g[k], g0[k], f"{k} at {tile} px tiles")
+
+
 def test_parallel_binning_equals_serial():
     """Blocked parallel sort/bin (many blocks, many depth ties) == the one-thread version."""
     from vid2sim.splats.cpu.binning import BLOCK, sort_and_bin

@@ -24,6 +24,7 @@ from .reference import ALPHA_MAX, ALPHA_MIN, MEDIAN_T, SIGMA_CUTOFF, T_MIN, chec
 from .types import RasterOutput, RasterSettings
 
 GSPLAT_VERSION = "1.5.3"
+GSPLAT_TILE = 16  # px, gsplat's usual tile edge (RasterSettings.tile_size None)
 
 
 def require_gsplat():
@@ -59,7 +60,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
     colors, alphas, meta = gsplat.rasterization(
         p[0][ids], p[1][ids], torch.exp(p[2][ids]), proj.opacities, feats, viewmat, K, W, H,
         near_plane=settings.near, far_plane=settings.far, radius_clip=0.0, eps2d=0.3,
-        sh_degree=None, packed=False, tile_size=settings.tile_size, render_mode="RGB+D",
+        sh_degree=None, packed=False, tile_size=settings.tile(GSPLAT_TILE), render_mode="RGB+D",
         absgrad=absgrad, rasterize_mode="classic")
     img = colors[0]  # [H, W, 7]: rgb, normal, accumulated depth
 
@@ -164,7 +165,7 @@ def render_batch(scenes: list, cameras: list[Camera], scene_ids: list[int],
             m.means, torch.nn.functional.normalize(m.quats, dim=-1), torch.exp(m.log_scales),
             torch.sigmoid(m.opacity_logits), m.sh[:, :(deg + 1) ** 2], viewmats, Ks, W, H,
             near_plane=settings.near, far_plane=settings.far, eps2d=0.3, sh_degree=deg,
-            tile_size=settings.tile_size, render_mode="RGB+ED", rasterize_mode="classic")
+            tile_size=settings.tile(GSPLAT_TILE), render_mode="RGB+ED", rasterize_mode="classic")
         a = alphas[..., 0]  # [C, H, W]
         rgb[rows] = colors[..., :3] + (1.0 - a[..., None]) * bg
         alpha[rows] = a

@@ -216,7 +216,7 @@ def rasterize(means, quats, log_scales, opacity_logits, sh, camera: Camera,
         lo = proj.means2d.detach() - proj.radii[:, None].to(dtype)  # [V, 2]
         hi = proj.means2d.detach() + proj.radii[:, None].to(dtype)
     parts, where = [], []
-    for x0, x1, y0, y1 in _tiles(W, H, max(1, settings.tile_size)):
+    for x0, x1, y0, y1 in _tiles(W, H, max(1, settings.tile(16))):
         sel = torch.nonzero((lo[:, 0] < x1) & (hi[:, 0] > x0)
                             & (lo[:, 1] < y1) & (hi[:, 1] > y0)).squeeze(1)
         rows = (torch.arange(y0, y1, device=dev)[:, None] * W + torch.arange(x0, x1, device=dev)[None, :])

@@ -24,7 +24,13 @@ class RasterSettings:
     # None = off (training default); envs turn it on.
     cov_cull_alpha: Optional[float] = None
     active_sh_degree: int = 3
-    tile_size: int = 16
+    # px, tile edge; None: the backend's own (cpu 32, cuda and torch 16). Images do not depend
+    # on it; the cpu backward's gradients change by float rounding (per-tile sums).
+    tile_size: Optional[int] = None
+
+    def tile(self, default: int) -> int:
+        """tile_size, or `default` (the backend's own) when None."""
+        return default if self.tile_size is None else int(self.tile_size)
 
 
 @dataclass

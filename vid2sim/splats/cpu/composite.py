@@ -10,6 +10,8 @@ splat's list position; backward walks back to front from those, recovering T by 
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 from numba import njit, prange
 
@@ -30,14 +32,19 @@ ONE = F32(1.0)
 HALF = F32(0.5)
 ZERO = F32(0.0)
 NL = 14  # packed per-splat columns F_X .. F_NZ
-MAX_TILE = 64  # tile rows carry a 64-bit mask of terminated pixels
+# Tile edge cap: the pixel planes below hold MAX_TILE x MAX_TILE pixels (rows carry a 64-bit
+# mask of stopped pixels). Compact planes keep a tile's state in L1; the GoPro clip's training
+# views (320x150, 88k splats, 2 threads) composite ~9 % (forward) and ~10 % (backward) faster
+# in 32 px tiles than in 16 px ones, and as fast as in 64 px tiles with 64 px planes.
+MAX_TILE = 32
+CPU_TILE = 32  # px, the cpu kernels' tile edge when RasterSettings.tile_size is None
 ALL_BITS = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 
-def kernel_tile(tile_size: int) -> int:
-    """Tile edge the kernels use: settings.tile_size capped at MAX_TILE (results do not
-    depend on the tile size)."""
-    return max(1, min(int(tile_size), MAX_TILE))
+def kernel_tile(tile_size: Optional[int]) -> int:
+    """Tile edge the kernels use: settings.tile_size (CPU_TILE when None) capped at MAX_TILE
+    (images do not depend on the tile size; the backward's gradients by float rounding)."""
+    return CPU_TILE if tile_size is None else max(1, min(int(tile_size), MAX_TILE))
 
 
 @njit(cache=True)

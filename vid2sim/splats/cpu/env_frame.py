@@ -29,7 +29,7 @@ from ._expf import expf_glibc
 from ._geom import jac_limits
 from ._sched import fetch_add, new_counter
 from .binning import _sort_and_bin_serial
-from .composite import A_MAX, A_MIN, ALL_BITS, HALF, ONE, S_MAX, T_MIN, ZERO
+from .composite import A_MAX, A_MIN, ALL_BITS, HALF, MAX_TILE, ONE, S_MAX, T_MIN, ZERO
 from ._project_planes import NQ, PCH, lane_buffers, sh_layout
 from .env_scene_kernels import cull_cells, static_chunk
 from .project import F_A, F_B, F_BL, F_C, F_CUT, F_G, F_O, F_R, F_X, F_Y, F_Z, view_parts
@@ -77,8 +77,8 @@ def _gather_tile(fo, box, inst, s, n, g, gb):
 
 
 XLANES = 8  # pixels per vector window of a splat row
-XROW = 64 + XLANES  # row stride of the tile's pixel planes (tiles of at most 64 x 64 px)
-XNPIX = 64 * XROW  # floats per plane
+XROW = MAX_TILE + XLANES  # row stride of the tile's pixel planes (tiles of at most MAX_TILE px)
+XNPIX = MAX_TILE * XROW  # floats per plane
 X1, X2, X3, X4, X5, X6 = (np.uint64(i * XNPIX) for i in range(1, 7))  # planes of pix after T:
 # r g b z, blend count (float32: exact below 2^24), weight of the last window
 U64 = np.uint64
