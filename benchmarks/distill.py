@@ -181,6 +181,17 @@ def camera_kwargs(args) -> dict:
     return {"camera": {"vfov_deg": args.camera_vfov}} if args.camera_vfov else {}
 
 
+def obstacle_kwargs(args) -> dict:
+    """The training envs' obstacle count override (--train-obstacles MIN MAX; the evaluation keeps
+    the protocol's 0-5), {} for the envs' own."""
+    if not args.train_obstacles:
+        return {}
+    lo, hi = args.train_obstacles
+    if not 0 <= lo <= hi:
+        raise SystemExit(f"--train-obstacles {lo} {hi}: need 0 <= MIN <= MAX")
+    return {"obstacles": {"min_count": lo, "max_count": hi}}
+
+
 def train_one(args, reg: str, seed: int, scene_ids: Optional[list[str]] = None) -> tuple[Path, dict]:
     """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget.
     scene_ids: the training streets (None: the registry split's training side)."""
@@ -188,7 +199,7 @@ def train_one(args, reg: str, seed: int, scene_ids: Optional[list[str]] = None) 
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
-                                     "fidelity": args.fidelity, **camera_kwargs(args)},
+                                     "fidelity": args.fidelity, **camera_kwargs(args), **obstacle_kwargs(args)},
                          distill=distill_config(args))
     return run_dir, train_or_reuse(config)
 
@@ -379,6 +390,8 @@ def main() -> None:
                     help="the training envs' per-episode image augmentation (exposure, tint, fog, rain, snow)")
     ap.add_argument("--camera-vfov", type=float, default=0.0,
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
+    ap.add_argument("--train-obstacles", type=int, nargs=2, default=None, metavar=("MIN", "MAX"),
+                    help="static obstacles per training episode (default: the envs' 0-5; evaluation keeps 0-5)")
     ap.add_argument("--depth-target", action="store_true",
                     help="student: auxiliary head predicting the frame's nearest depth per cell of its last conv map")
     ap.add_argument("--depth-weight", type=float, default=DistillConfig.depth_weight,

@@ -189,6 +189,21 @@ def test_tile_size_changes_no_image_and_gradients_by_rounding():
             assert_grad_close(g[k], g0[k], f"{k} at {tile} px tiles")
 
 
+def test_median_depth_off_changes_nothing_else():
+    """RasterSettings.median_depth False: the cpu backend leaves median_depth 0 and every other
+    image and gradient as with it (a loss that does not read the median)."""
+    scene, camera = random_scene(9), random_camera(9)
+    weights = {k: w for k, w in loss_weights(9, 32, 48).items() if k != "median_depth"}
+    o1, g1 = run(cpu_rasterize, scene, camera, RasterSettings(48, 32), weights)
+    o2, g2 = run(cpu_rasterize, scene, camera, RasterSettings(48, 32, median_depth=False), weights)
+    assert float(o1.median_depth.abs().max()) > 0.1 and not o2.median_depth.any()
+    for k in IMAGES:
+        if k != "median_depth":
+            assert torch.equal(getattr(o1, k), getattr(o2, k)), k
+    for k in PARAMS:
+        assert torch.equal(g1[k], g2[k]), k
+
+
 def test_parallel_binning_equals_serial():
     """Blocked parallel sort/bin (many blocks, many depth ties) == the one-thread version."""
     from vid2sim.splats.cpu.binning import BLOCK, sort_and_bin

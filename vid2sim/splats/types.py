@@ -27,6 +27,9 @@ class RasterSettings:
     # px, tile edge; None: the backend's own (cpu 32, cuda and torch 16). Images do not depend
     # on it; the cpu backward's gradients change by float rounding (per-tile sums).
     tile_size: Optional[int] = None
+    # False: the caller does not read median_depth, and a backend may leave it 0 (the cpu one
+    # then skips a per-pixel plane in its forward composite)
+    median_depth: bool = True
 
     def tile(self, default: int) -> int:
         """tile_size, or `default` (the backend's own) when None."""
@@ -41,7 +44,8 @@ class RasterOutput:
     alpha        [H, W]     1 - T_final
     depth_accum  [H, W]     sum_i w_i z_i            (camera z)
     normal_accum [H, W, 3]  sum_i w_i n_i            (camera frame, OpenCV axes)
-    median_depth [H, W]     z of the first splat where T drops to <= 0.5, else 0
+    median_depth [H, W]     z of the first splat where T drops to <= 0.5, else 0 (may be
+                            all 0 with RasterSettings.median_depth False)
     means2d      [N, 2]     projected centres (pixels); zeros for culled splats
     radii        [N]        int32 pixel radius, 0 = culled
     absgrad      [N, 2]     filled by backward: sum over pixels of |dL/dmeans2d| (AbsGS)

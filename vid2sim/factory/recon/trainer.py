@@ -251,7 +251,8 @@ def _train(conf: ReconConfig, clip: PosedClip, views: list[View], priors: dict[i
         params.set_lr("means", means_lr(conf, extent, it))
         cam = level.cams[vi]
         deg = min(conf.sh_degree, it // max(conf.sh_increase_every, 1))
-        settings = RasterSettings(width=cam.width, height=cam.height, active_sh_degree=deg)
+        settings = RasterSettings(width=cam.width, height=cam.height, active_sh_degree=deg,
+                                  median_depth=False)  # no loss reads it
         out = render(params.model(), cam, settings, conf.background, conf.backend, absgrad=True)
         gt, mask = level.gts[vi]
         loss, parts = step_loss(conf, out, gt, mask, level.priors.get(vi), params.p["log_scales"], it)

@@ -72,12 +72,13 @@ N_FWD_PLANES = 10
 
 @njit(cache=True, inline="always")
 def _fwd_window(pix, pb, px0, livebits, hi, kf, mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2, c3,
-                c4, c5, c6):
+                c4, c5, c6, med):
     """Blend splat kf into LANES pixels of a row (lane j = pixel px0 + j, plane index pb + j)
     with the arithmetic and order of the per-pixel 3DGS loop but no branch, so the window
     vectorises (expf_glibc equals np.exp bit for bit). Lanes that have stopped (bit j of
     livebits clear), lie past the box (j > hi), fall outside the cut-off or below A_MIN take
-    no weight; lanes reaching T < T_MIN stop. Returns the stop bits."""
+    no weight; lanes reaching T < T_MIN stop. med (a constant at each call: the branch folds
+    away once inlined): track the median splat. Returns the stop bits."""
     stops = U64(0)
     for j in range(LANES):
         p = pb + U64(j)
@@ -101,18 +102,20 @@ def _fwd_window(pix, pb, px0, livebits, hi, kf, mx, dy, ccdy2, ca, cb, o, ct, c0
         pix[p + P_ACC[6]] += w * c6
         pix[p] = Tn if blend else Tp
         pix[p + P_LAST] = kf + ONE if blend else pix[p + P_LAST]
-        m = pix[p + P_MED]
-        pix[p + P_MED] = kf if blend & (m < ZERO) & (Tn <= T_MED) else m
+        if med:
+            m = pix[p + P_MED]
+            pix[p + P_MED] = kf if blend & (m < ZERO) & (Tn <= T_MED) else m
         stops |= U64(ok & (Tn < T_MIN)) << U64(j)
     return stops
 
 
 @njit(cache=True, error_model="numpy")
 def _tile_forward(g, gb, n, x0, y0, x1, y1, pix, rdone, color, alpha, depth, normal, median,
-                  T_out, n_contrib, med_idx):
+                  T_out, n_contrib, med_idx, want_median):
     """Composite one tile's depth-sorted splats g [n, NL] / gb [n, 4] (splat-major, each
     splat row in SIMD windows, per-pixel early stop); pix [N_FWD_PLANES PLANE] and
-    rdone [MAX_TILE] (per row: bit px - x0 set once px has stopped) are scratch."""
+    rdone [MAX_TILE] (per row: bit px - x0 set once px has stopped) are scratch. Without
+    want_median, median and med_idx read 0 and -1."""
     tw, th = x1 - x0, y1 - y0
     for i in range(th * PROW):
         p = U64(i)
@@ -145,9 +148,14 @@ def _tile_forward(g, gb, n, x0, y0, x1, y1, pix, rdone, color, alpha, depth, nor
             dy = (F32(py) + HALF) - my
             ccdy2 = cc * dy * dy
             for c in range(lo, hi + 1, LANES):
-                stop = _fwd_window(pix, U64(ry * PROW + c), x0 + c, ~rdone[ry] >> U64(c),
-                                   U64(hi - c), kf, mx, dy, ccdy2, ca, cb, o, ct, c0, c1, c2,
-                                   c3, c4, c5, c6) << U64(c)
+                pb, live = U64(ry * PROW + c), ~rdone[ry] >> U64(c)
+                if want_median:
+                    stop = _fwd_window(pix, pb, x0 + c, live, U64(hi - c), kf, mx, dy, ccdy2, ca,
+                                       cb, o, ct, c0, c1, c2, c3, c4, c5, c6, True)
+                else:
+                    stop = _fwd_window(pix, pb, x0 + c, live, U64(hi - c), kf, mx, dy, ccdy2, ca,
+                                       cb, o, ct, c0, c1, c2, c3, c4, c5, c6, False)
+                stop <<= U64(c)
                 rdone[ry] |= stop
                 n_live -= np.int64(popc64(stop))
         if n_live == 0:
@@ -187,10 +195,11 @@ def tile_rect(t, tiles_x, tile, width, height):
 
 @njit(parallel=True, cache=True)
 def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alpha, depth,
-                   normal, median, T_out, n_contrib, med_idx, n_workers=1):
-    """Composite every tile; outputs are [H, W(, 3)] arrays. n_workers parallel workers
-    draw tiles, largest first, from a shared counter (dynamic balance: near-camera tiles
-    and a core slowed by other processes do not hold the others up)."""
+                   normal, median, T_out, n_contrib, med_idx, n_workers=1, want_median=True):
+    """Composite every tile; outputs are [H, W(, 3)] arrays (without want_median, median
+    and med_idx read 0 and -1). n_workers parallel workers draw tiles, largest first, from a
+    shared counter (dynamic balance: near-camera tiles and a core slowed by other processes
+    do not hold the others up)."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
     if tile > MAX_TILE:
@@ -213,7 +222,7 @@ def raster_forward(fo, box, tile_offsets, inst, width, height, tile, color, alph
             x0, y0, x1, y1 = tile_rect(t, tiles_x, tile, width, height)
             gather(fo, box, inst, s, n, g, gb)
             _tile_forward(g, gb, n, x0, y0, x1, y1, pix, rdone, color, alpha, depth, normal,
-                          median, T_out, n_contrib, med_idx)
+                          median, T_out, n_contrib, med_idx, want_median)
 
 
 # Backward planes of `pix` after T (plane 0): n_contrib (float32), the 8 per-pixel loss

@@ -49,7 +49,8 @@ class Frame:
     radii: np.ndarray  # [N] int32
 
 
-def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: int) -> tuple:
+def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: int,
+              want_median: bool = True) -> tuple:
     """Bin the visible splats (fo [V, NF], box [V, 4]) and composite all tiles."""
     tiles_x = (width + tile - 1) // tile
     n_tiles = tiles_x * ((height + tile - 1) // tile)
@@ -61,7 +62,7 @@ def composite(fo: np.ndarray, box: np.ndarray, width: int, height: int, tile: in
     n_contrib = np.empty((height, width), np.int32)
     med_idx = np.empty((height, width), np.int32)
     raster_forward(fo, box, offsets, inst, width, height, tile, color, alpha, depth, normal,
-                   median, T_final, n_contrib, med_idx, numba.get_num_threads())
+                   median, T_final, n_contrib, med_idx, numba.get_num_threads(), want_median)
     return (offsets, inst, row_start, pos, color, alpha, depth, normal, median, T_final,
             n_contrib, med_idx)
 
@@ -94,7 +95,7 @@ def forward_frame(means, quats, log_scales, logits, sh, deg: int, camera: Camera
                     cov_alpha, fo, box, radii, numba.get_num_threads())
     ids = np.flatnonzero(radii)
     fo_v, box_v = fo[ids], box[ids]
-    parts = composite(fo_v, box_v, W, H, tile)
+    parts = composite(fo_v, box_v, W, H, tile, settings.median_depth)
     means2d = np.zeros((N, 2), np.float32)
     means2d[ids, 0] = fo_v[:, F_X]
     means2d[ids, 1] = fo_v[:, F_Y]
