@@ -73,7 +73,7 @@ def distill_config(args) -> DistillConfig:
                             channels=tuple(args.channels),
                             clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
                             depth_target=args.depth_target, vector_history=args.vector_history,
-                            steer_gain=args.steer_gain)
+                            steer_gain=args.steer_gain, keypoints=args.keypoints)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    mirror=args.mirror, min_beta=args.min_beta,
@@ -392,6 +392,8 @@ def main() -> None:
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--train-obstacles", type=int, nargs=2, default=None, metavar=("MIN", "MAX"),
                     help="static obstacles per training episode (default: the envs' 0-5; evaluation keeps 0-5)")
+    ap.add_argument("--keypoints", type=int, default=StudentConfig.keypoints,
+                    help="student: K spatial-softmax keypoints per frame instead of the flattened conv map (0: off)")
     ap.add_argument("--depth-target", action="store_true",
                     help="student: auxiliary head predicting the frame's nearest depth per cell of its last conv map")
     ap.add_argument("--depth-weight", type=float, default=DistillConfig.depth_weight,

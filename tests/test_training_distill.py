@@ -22,7 +22,7 @@ from vid2sim.training.distill import (DEPTH_GRID, STUDENT_NAME, Batch, Dataset, 
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
-from vid2sim.training.student import StudentConfig, StudentPolicy, random_shift
+from vid2sim.training.student import SpatialSoftmax, StudentConfig, StudentPolicy, random_shift
 from vid2sim.training.wrappers import TeacherError, TeacherLabels, check_depth_grid, depth_blocks
 
 TINY = StudentConfig(frames=2, pool=2, channels=(4, 4, 8, 8), frame_dim=16, vector_dim=8, hidden=16)
@@ -230,6 +230,38 @@ def test_the_mirror_average_treats_left_and_right_alike_and_exports(tmp_path):
                                    driven.numpy(), atol=1e-5)
     with pytest.raises(ValueError, match="not driving settings"):
         student.driving_with(frames=3)
+
+
+def test_keypoint_features_are_expected_positions_that_mirror_and_export(tmp_path):
+    """keypoints K: each frame's features are K expected (x, y) cell positions in [-1, 1]; a map
+    flipped left to right negates every x and keeps every y; saved and exported alike."""
+    torch.manual_seed(0)
+    head = SpatialSoftmax(8, 5, 8, keypoints=4)
+    maps = torch.rand(3, 8, 5, 8) * 4.0
+    points = head(maps).reshape(3, 4, 2)
+    assert points.abs().max() <= 1.0
+    flipped = head(maps.flip(-1)).reshape(3, 4, 2)
+    torch.testing.assert_close(flipped[..., 0], -points[..., 0])
+    torch.testing.assert_close(flipped[..., 1], points[..., 1])
+    peak = torch.zeros(1, 8, 5, 8)
+    peak[0, :, 4, 7] = 50.0  # every channel peaks in the bottom-right cell
+    with torch.no_grad():
+        head.project.weight.copy_(torch.eye(4, 8)[:, :, None, None])
+        head.project.bias.zero_()
+    torch.testing.assert_close(head(peak).reshape(4, 2), torch.ones(4, 2), atol=1e-3, rtol=0)
+    student = StudentPolicy(StudentConfig(**{**TINY.to_dict(), "keypoints": 4}), (6, 3, 72, 128), (6, 2)).eval()
+    assert student.frame_head[0].in_features == 8
+    image = torch.randint(0, 256, (5, 6, 3, 72, 128), dtype=torch.uint8)
+    vector = torch.randn(5, 6, 2)
+    with torch.no_grad():
+        driven = student(image, vector)
+    student.save(tmp_path / STUDENT_NAME)
+    out = export_policy(tmp_path, tmp_path / "export")
+    for backend in ("onnx", "torch"):
+        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image.numpy(), vector.numpy()),
+                                   driven.numpy(), atol=1e-5)
+    with pytest.raises(RangeError, match="keypoints"):
+        StudentConfig(keypoints=-1)
 
 
 def test_random_shift_crops_the_padded_frames_with_one_offset_per_sample():

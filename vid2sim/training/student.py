@@ -31,6 +31,11 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
 - optionally (`mirror_average`) driving with the mean of its action and the mirrored action for
   the mirrored view, so it turns left where it would turn right in the mirrored street (pairs
   with the learner's mirrored samples, `DistillConfig.mirror`); twice the inference;
+- optionally (`keypoints` K > 0) each frame's features from K spatial-softmax keypoints of its last
+  conv map instead of the flattened map (Levine et al. 2016; robomimic's image encoders): a 1 x 1
+  conv to K maps, a softmax over each map's cells with a learnt temperature, and each map's
+  expected (x, y) in [-1, 1] (x negates under the mirror): the features say where in the view
+  something is, which the flattened map's position-specific weights must learn cell by cell;
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
   clearance readings in [0, 1], trained as an auxiliary target and left out of the export;
 - optionally (`depth_target`) a 1 x 1 conv head on the latest frame's last conv map (5 x 8 at
@@ -74,6 +79,7 @@ class StudentConfig:
     clearance_rays: int = 0  # auxiliary head: the teacher's clearance over the view, K rays (0: none)
     steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
     depth_target: bool = False  # auxiliary head: the latest frame's nearest depth per cell of the last conv map
+    keypoints: int = 0  # frame features: K spatial-softmax keypoints of the last conv map (0: the flattened map)
     steer_gain: float = 1.0  # when driving: steering tanh(gain x pre-activation); the learner's loss sees gain 1
     # when driving: the mean of its action and the mirrored action for the mirrored view (frames flipped left
     # to right, the goal's heading negated), so left and right are treated exactly alike; the loss sees one pass
@@ -124,7 +130,10 @@ class StudentPolicy(nn.Module):
         self.encoder = frame_encoder(channels, config.channels).to(memory_format=torch.channels_last)
         with torch.no_grad():
             probe = self.preprocess(torch.zeros(1, *self.image_shape, dtype=torch.uint8))
-            n_flat = self.encoder(probe[:, 0].float()).shape[1]
+            map_shape = self.encoder[:-1](probe[:, 0].float()).shape[1:]  # [c4, h', w']
+        # with keypoints: the last conv map -> K (x, y) keypoints [2K]; else the flattened map
+        self.keypoint_head = SpatialSoftmax(*map_shape, config.keypoints) if config.keypoints else None
+        n_flat = 2 * config.keypoints if config.keypoints else math.prod(map_shape)
         self.frame_head = nn.Sequential(nn.Linear(n_flat, config.frame_dim), nn.ReLU())
         if config.vector_history > self.vector_shape[0]:
             raise ValueError(f"the observation stacks {self.vector_shape[0]} goal vectors, the student wants the "
@@ -176,7 +185,8 @@ class StudentPolicy(nn.Module):
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
         maps = self.encoder[:-1](x)  # [B * frames, c4, h', w'] (the encoder without its Flatten)
-        per_frame = self.frame_head(maps.flatten(1)).reshape(b, k, -1)  # [B, frames, frame_dim]
+        features = self.keypoint_head(maps) if self.keypoint_head is not None else maps.flatten(1)
+        per_frame = self.frame_head(features).reshape(b, k, -1)  # [B, frames, frame_dim]
         recent = vector[:, -self.config.vector_history:]  # [B, vector_history, 2]
         vec = self.vector_head(recent.float().flatten(1) * self.vector_scale)
         out = self.head(torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, 2] or [B, 1 + K]
@@ -220,6 +230,24 @@ class StudentPolicy(nn.Module):
     @classmethod
     def load(cls, path) -> "StudentPolicy":
         return cls.from_checkpoint(torch.load(path, map_location="cpu", weights_only=False))
+
+
+class SpatialSoftmax(nn.Module):
+    """Conv maps [N, C, h, w] -> K keypoints [N, 2K] (x1, y1, x2, y2, ...): a 1 x 1 conv to K maps,
+    a softmax over each map's h x w cells at a learnt temperature, and each map's expected cell
+    position, x and y in [-1, 1] (left to right, top to bottom; symmetric, so a view flipped left to
+    right negates x)."""
+
+    def __init__(self, channels: int, height: int, width: int, keypoints: int) -> None:
+        super().__init__()
+        self.project = nn.Conv2d(channels, keypoints, 1)
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+        ys, xs = torch.meshgrid(torch.linspace(-1.0, 1.0, height), torch.linspace(-1.0, 1.0, width), indexing="ij")
+        self.register_buffer("grid", torch.stack([xs.flatten(), ys.flatten()], dim=1), persistent=False)  # [h w, 2]
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        logits = self.project(maps).flatten(2) * torch.exp(-self.log_temperature)  # [N, K, h w]
+        return (torch.softmax(logits, dim=2) @ self.grid).flatten(1)  # [N, K, 2] -> [N, 2K]
 
 
 @dataclass
