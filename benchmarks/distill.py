@@ -73,7 +73,8 @@ def distill_config(args) -> DistillConfig:
                             channels=tuple(args.channels),
                             clearance_rays=args.clearance_rays, steer_bins=args.steer_bins,
                             depth_target=args.depth_target, vector_history=args.vector_history,
-                            steer_gain=args.steer_gain, keypoints=args.keypoints)
+                            steer_gain=args.steer_gain, keypoints=args.keypoints,
+                            waypoints=args.waypoints, drive_waypoints=args.drive_waypoints)
     return replace(DistillConfig(), steps_per_round=args.steps_per_round, updates_per_round=args.updates_per_round,
                    max_samples=args.max_samples, eviction=args.eviction, shift_pad=args.shift_pad,
                    mirror=args.mirror, min_beta=args.min_beta,
@@ -81,7 +82,8 @@ def distill_config(args) -> DistillConfig:
                    teacher_lookahead=args.teacher_lookahead, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
                    hard_fraction=args.hard_fraction, hard_steps=args.hard_steps,
-                   depth_weight=args.depth_weight, ema_decay=args.ema_decay, augment=args.augment,
+                   depth_weight=args.depth_weight, waypoint_weight=args.waypoint_weight, ema_decay=args.ema_decay,
+                   augment=args.augment,
                    student=student)
 
 
@@ -243,6 +245,9 @@ def run_heldout(args, run: Run) -> None:
         run_driving(args, run, reg, trained, f"steer gain {gain:g}", steer_gain=gain)
     if args.eval_mirror_average:
         run_driving(args, run, reg, trained, "mirror average", mirror_average=True)
+    if args.eval_other_steering:  # students with a route head: the steering they were not trained to drive by
+        label = "action head" if args.drive_waypoints else "route pursuit"
+        run_driving(args, run, reg, trained, label, drive_waypoints=not args.drive_waypoints)
 
 
 def evaluate_policy(args, run: Run, reg: str, policy_dir: Path, name: str, budget: dict,
@@ -394,6 +399,15 @@ def main() -> None:
                     help="static obstacles per training episode (default: the envs' 0-5; evaluation keeps 0-5)")
     ap.add_argument("--keypoints", type=int, default=StudentConfig.keypoints,
                     help="student: K spatial-softmax keypoints per frame instead of the flattened conv map (0: off)")
+    ap.add_argument("--waypoints", type=int, default=StudentConfig.waypoints,
+                    help="student: a second head predicting the teacher's route ahead as K points 0.5 m apart (0: off)")
+    ap.add_argument("--drive-waypoints", action="store_true",
+                    help="student: steer by pure pursuit on its predicted route (needs --waypoints)")
+    ap.add_argument("--eval-other-steering", action="store_true",
+                    help="with --waypoints: also evaluate the students steering the other way (the action head "
+                         "when they drive by their route, the route's pure pursuit when not)")
+    ap.add_argument("--waypoint-weight", type=float, default=DistillConfig.waypoint_weight,
+                    help="weight of the route loss (with --waypoints)")
     ap.add_argument("--depth-target", action="store_true",
                     help="student: auxiliary head predicting the frame's nearest depth per cell of its last conv map")
     ap.add_argument("--depth-weight", type=float, default=DistillConfig.depth_weight,
@@ -427,6 +441,8 @@ def main() -> None:
         args.updates_per_round, args.trials, args.envs, args.eval_max_steps = 20, 2, 2, 100
     if args.ensemble and not 2 <= args.ensemble <= len(args.seeds):
         ap.error(f"--ensemble {args.ensemble}: an ensemble needs 2 to {len(args.seeds)} students (the --seeds)")
+    if (args.drive_waypoints or args.eval_other_steering) and not args.waypoints:
+        ap.error("--drive-waypoints and --eval-other-steering need a route head (--waypoints K)")
     with Run("distill", args) as run:
         {"heldout": run_heldout, "study": run_study_bench}[args.what](args, run)
 

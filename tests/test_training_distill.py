@@ -4,6 +4,7 @@ evaluates; the student's preprocessing and augmentation; named errors for bad in
 from __future__ import annotations
 
 import json
+import math
 import os
 
 import gymnasium as gym
@@ -22,8 +23,10 @@ from vid2sim.training.distill import (DEPTH_GRID, STUDENT_NAME, Batch, Dataset, 
 from vid2sim.training.evaluate import EvalConfig, ObservationMismatch, evaluate, load_student
 from vid2sim.training.export import NavPolicy, export_policy
 from vid2sim.training.rollouts import init_ray
-from vid2sim.training.student import SpatialSoftmax, StudentConfig, StudentPolicy, random_shift
-from vid2sim.training.wrappers import TeacherError, TeacherLabels, check_depth_grid, depth_blocks
+from vid2sim.training.student import (SpatialSoftmax, StudentConfig, StudentPolicy, pursuit_steering,
+                                      random_shift)
+from vid2sim.training.wrappers import (TeacherError, TeacherLabels, check_depth_grid, depth_blocks,
+                                       route_waypoints)
 
 TINY = StudentConfig(frames=2, pool=2, channels=(4, 4, 8, 8), frame_dim=16, vector_dim=8, hidden=16)
 
@@ -464,8 +467,17 @@ def check_shard_depth(shard: Batch) -> None:
     assert shard.depth.min() < 200 and (shard.depth < 255).mean() > 0.3  # the street is in view, near enough
 
 
+def check_shard_waypoints(shard: Batch) -> None:
+    route = shard.waypoints  # [N, 4, 2]
+    assert route.shape == (len(shard.actions), 4, 2) and route.dtype == np.float32
+    steps = np.hypot(*np.diff(route, axis=1).transpose(2, 0, 1))  # [N, 3] chords of 0.5 m arcs
+    assert steps.max() <= 0.5 + 1e-4 and np.median(steps) > 0.45
+    assert np.median(route[:, -1, 0]) > 1.0  # the route runs ahead of the robot
+
+
 @pytest.mark.parametrize("target, student_field, weight, check_shard, falls_to", [
     ("clearance", {"clearance_rays": 5}, "clearance_weight", check_shard_clearance, 0.5),
+    ("waypoint", {"waypoints": 4, "drive_waypoints": True}, "waypoint_weight", check_shard_waypoints, 0.5),
     ("depth", {"depth_target": True}, "depth_weight", check_shard_depth, 0.7),  # measured: about 0.06 -> 0.03
 ])
 def test_an_auxiliary_target_is_collected_learnt_and_left_out_of_the_export(
@@ -492,6 +504,37 @@ def test_an_auxiliary_target_is_collected_learnt_and_left_out_of_the_export(
         trained = load_student(tmp_path / "run" / STUDENT_NAME)
         expected = trained(torch.from_numpy(image), torch.from_numpy(vector)).numpy()
     np.testing.assert_allclose(NavPolicy(out, "onnx").act_stacked(image, vector), expected, atol=1e-5)
+
+
+def test_route_waypoints_are_points_along_the_route_in_the_robots_frame():
+    path = np.stack([np.linspace(0.0, 4.0, 41), np.full(41, 2.0)], axis=1)  # [41, 2] along +x at y = 2
+    points = route_waypoints(path, 10, (1.0, 1.5, math.pi / 2), 3)  # robot at (1, 1.5) facing +y
+    # along the route from x = 1: (1.5, 2), (2, 2), (2.5, 2); forward is +y, left is -x
+    np.testing.assert_allclose(points, [[0.5, -0.5], [0.5, -1.0], [0.5, -1.5]], atol=1e-6)
+    tail = route_waypoints(path, 38, (3.8, 2.0, 0.0), 3)  # past the end: the end repeats
+    np.testing.assert_allclose(tail, [[0.2, 0.0], [0.2, 0.0], [0.2, 0.0]], atol=1e-6)
+
+
+def test_pursuit_on_a_route_is_the_teachers_steering():
+    """The student's pure pursuit of the route point 1 m along it steers as the teacher's formula
+    atan(2 L sin(alpha) / l_d) does for that point, over the steering limit, clipped to [-1, 1]."""
+    from vid2sim.formats.robot import ROBOT
+    route = torch.tensor([[[0.5, 0.05], [0.95, 0.3], [1.4, 0.6]],
+                          [[0.5, -0.1], [1.0, -0.05], [1.5, 0.0]],
+                          [[0.3, 0.4], [0.2, 0.98], [0.0, 1.5]]])  # [3, 3, 2]
+    steering = pursuit_steering(route, 1.0)
+    for b in range(3):
+        x, y = route[b, 1].tolist()
+        alpha, ld = math.atan2(y, x), math.hypot(x, y)
+        want = math.atan2(2 * ROBOT.wheelbase_m * math.sin(alpha), ld) / math.radians(ROBOT.max_steer_deg)
+        assert steering[b].item() == pytest.approx(max(-1.0, min(1.0, want)), abs=1e-5)
+    assert steering[2].item() == 1.0  # a point to the left beyond the steering limit: full lock
+    torch.testing.assert_close(pursuit_steering(route, 0.75),
+                               pursuit_steering(0.5 * (route[:, :1] + route[:, 1:2]), 0.5))
+    with pytest.raises(ValueError, match="waypoints"):
+        StudentConfig(drive_waypoints=True)
+    with pytest.raises(ValueError, match="lookahead"):
+        StudentConfig(waypoints=2, drive_waypoints=True, lookahead=1.5)
 
 
 def test_depth_blocks_keep_each_blocks_nearest_depth():
@@ -591,7 +634,8 @@ def test_a_mirrored_state_flips_its_views_and_negates_its_steering_and_heading()
     n = 4
     data = Batch(rng.integers(0, 256, (n, 2, 3, 36, 64), dtype=np.uint8), rng.normal(size=(n, 6, 2)).astype(np.float32),
                  rng.uniform(-1, 1, (n, 2)).astype(np.float32), rng.uniform(0, 1, (n, 9)).astype(np.float32),
-                 rng.integers(0, 256, (n, *DEPTH_GRID), dtype=np.uint8))
+                 rng.integers(0, 256, (n, *DEPTH_GRID), dtype=np.uint8), None,
+                 rng.normal(size=(n, 4, 2)).astype(np.float32))
     rows = np.array([True, False, True, False])
     seen = data.mirrored(rows)
     np.testing.assert_array_equal(seen.frames[0, :, :, :, 0], data.frames[0, :, :, :, -1])  # left edge <- right edge
@@ -601,12 +645,13 @@ def test_a_mirrored_state_flips_its_views_and_negates_its_steering_and_heading()
     np.testing.assert_array_equal(seen.actions[rows], data.actions[rows] * np.float32([1, -1]))  # speed kept
     np.testing.assert_array_equal(seen.clearance[2], data.clearance[2, ::-1])
     np.testing.assert_array_equal(seen.depth[2], data.depth[2, :, ::-1])
+    np.testing.assert_array_equal(seen.waypoints[2], data.waypoints[2] * np.float32([1, -1]))  # route: y negated
     twice = seen.mirrored(rows)
-    for field in ("frames", "vectors", "actions", "clearance", "depth"):
+    for field in ("frames", "vectors", "actions", "clearance", "depth", "waypoints"):
         np.testing.assert_array_equal(getattr(twice, field), getattr(data, field))  # and the original is a copy
     in_place = data.take(np.arange(n))  # a copy, mirrored where it lies
     assert in_place.mirror_rows(rows) is in_place
-    for field in ("frames", "vectors", "actions", "clearance", "depth"):
+    for field in ("frames", "vectors", "actions", "clearance", "depth", "waypoints"):
         np.testing.assert_array_equal(getattr(in_place, field), getattr(seen, field))
     with pytest.raises(ValueError, match="mirror"):
         DistillConfig(mirror=1.5)

@@ -68,6 +68,9 @@ class DistillConfig:
     # weight of the auxiliary depth loss (MSE to the frame's nearest depth per cell, / 5 m) when the student has
     # a depth head (student.depth_target)
     depth_weight: float = 1.0
+    # weight of the route loss (MSE in m to the teacher's route ahead) when the student has a route head
+    # (student.waypoints)
+    waypoint_weight: float = 1.0
     # exponential moving average of the student's weights per learner step (0: off, the last weights are the
     # student); with it the average drives the student's episodes and is the final student. 0.999: held-out
     # SR 0.75 against 0.70 without, 3 seeds, un-augmented envs (docs/studies/pixel_distillation.md)

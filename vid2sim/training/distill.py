@@ -23,7 +23,9 @@ does, in order:
      steering and the goal's heading negated), warm-started from the last round;
      a student with a clearance head (`StudentConfig.clearance_rays` K > 0) also regresses the
      teacher's privileged clearance over the view (K ray ranges, `TeacherLabels`), an auxiliary
-     target that asks the encoder to see how far away what it faces is (`clearance_weight`);
+     target that asks the encoder to see how far away what it faces is (`clearance_weight`); one with
+     a route head (`StudentConfig.waypoints` K > 0) regresses the teacher's route ahead (K points,
+     `TeacherLabels`; `waypoint_weight`), which it can also drive by (`StudentConfig.drive_waypoints`);
   5. write the round's data shard (data/round_K.npz, written once) and checkpoints/last.pt (student,
      optimizer, round, history), log to TensorBoard (tb/) and to the returned history.
 With `ema_decay` > 0 an exponential moving average of the student's weights (updated after every
@@ -81,6 +83,8 @@ class Batch:
     # bool [N]: the state is one of the `DistillConfig.hard_steps` states before a contact began (the
     # learner draws `hard_fraction` of each batch from these); all False in shards written before it
     hard: Optional[np.ndarray] = None
+    # float32 [N, K, 2]: the teacher's route ahead in the robot's frame (m); [N, 0, 2] without the target
+    waypoints: Optional[np.ndarray] = None
 
     def __post_init__(self) -> None:
         if self.clearance is None:
@@ -89,31 +93,35 @@ class Batch:
             self.depth = np.zeros((len(self.actions), 0, 0), np.uint8)
         if self.hard is None:
             self.hard = np.zeros(len(self.actions), bool)
+        if self.waypoints is None:
+            self.waypoints = np.zeros((len(self.actions), 0, 2), np.float32)
 
     def save(self, path: Path) -> None:
         np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance,
-                 depth=self.depth, hard=self.hard)
+                 depth=self.depth, hard=self.hard, waypoints=self.waypoints)
 
     @classmethod
     def load(cls, path: Path) -> "Batch":
         with np.load(path) as z:  # shards written before the auxiliary targets and the hard flags have none
             return cls(z["frames"], z["vectors"], z["actions"], *(z[k] if k in z else None
-                                                                  for k in ("clearance", "depth", "hard")))
+                                                                  for k in ("clearance", "depth", "hard",
+                                                                            "waypoints")))
 
     def take(self, idx: np.ndarray) -> "Batch":
         """Rows idx of every field."""
         return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx],
-                     self.hard[idx])
+                     self.hard[idx], self.waypoints[idx])
 
     def mirrored(self, rows: np.ndarray) -> "Batch":
         """A copy in which the states `rows` (bool [N]) are seen in a mirror (`mirror_rows`)."""
         out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
-                    self.depth.copy(), self.hard.copy())
+                    self.depth.copy(), self.hard.copy(), self.waypoints.copy())
         return out.mirror_rows(rows)
 
     def mirror_rows(self, rows: np.ndarray) -> "Batch":
         """The states `rows` (bool [N]) seen in a mirror, in place -> self: frames, clearance rays and
-        depth cells flipped left to right, the goal's heading and the teacher's steering negated
+        depth cells flipped left to right, the goal's heading, the teacher's steering and its route's
+        lateral offsets negated
         (the camera's principal point is the image centre, so a mirrored frame is the view of the
         mirrored street from the mirrored pose, and its label is the mirrored label)."""
         self.frames[rows] = self.frames[rows][..., ::-1]  # [n, F, C, h, w] flipped along w
@@ -121,6 +129,7 @@ class Batch:
         self.actions[rows, 1] *= -1.0  # steering (+ turns left)
         self.clearance[rows] = self.clearance[rows][:, ::-1]  # rays ordered across the view
         self.depth[rows] = self.depth[rows][..., ::-1]  # [n, 9, 16] cells flipped along the columns
+        self.waypoints[rows, :, 1] *= -1.0  # y (left) of each route point
         return self
 
 
@@ -172,7 +181,8 @@ class Dataset:
         part = np.searchsorted(starts, rows, side="right") - 1  # [B]
         first = self.parts[0]
         out = Batch(*(np.empty((len(rows), *a.shape[1:]), a.dtype)
-                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth, first.hard)))
+                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth, first.hard,
+                                first.waypoints)))
         for j in np.unique(part):
             hit = part == j
             local = rows[hit] - starts[j]
@@ -180,12 +190,16 @@ class Dataset:
             if src.clearance.shape[1] != out.clearance.shape[1]:
                 raise DistillError(f"clearance_mismatch: round data with {src.clearance.shape[1]} and "
                                    f"{out.clearance.shape[1]} clearance rays cannot be mixed")
+            if src.waypoints.shape[1] != out.waypoints.shape[1]:
+                raise DistillError(f"waypoint_mismatch: round data with {src.waypoints.shape[1]} and "
+                                   f"{out.waypoints.shape[1]} route points cannot be mixed")
             if src.depth.shape[1:] != out.depth.shape[1:]:
                 raise DistillError(f"depth_mismatch: round data with depth targets {src.depth.shape[1:]} and "
                                    f"{out.depth.shape[1:]} cannot be mixed")
             out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
             out.actions[hit], out.clearance[hit] = src.actions[local], src.clearance[local]
             out.depth[hit], out.hard[hit] = src.depth[local], src.hard[local]
+            out.waypoints[hit] = src.waypoints[local]
         return out
 
     def hard_rows(self) -> np.ndarray:
@@ -249,7 +263,8 @@ def env_specs(config: TrainConfig) -> list[EnvSpec]:
     grid = DEPTH_GRID if config.distill.student.depth_target else None
     return [EnvSpec(config.env_id, {**base, "scenes": group}, config.seed + i, config.env_module,
                     config.stuck_steps, teacher=True, teacher_clearance_rays=rays, teacher_depth_grid=grid,
-                    teacher_replan=config.distill.teacher_replan, teacher_lookahead=config.distill.teacher_lookahead)
+                    teacher_replan=config.distill.teacher_replan, teacher_lookahead=config.distill.teacher_lookahead,
+                    teacher_waypoints=config.distill.student.waypoints)
             for i, group in enumerate(scene_groups(config.scene_ids, config.n_envs))]
 
 
@@ -294,11 +309,13 @@ class Collector:
         stats, t0 = RoundStats(), time.perf_counter()
         self._check_labels()
         self.teacher_drives = self.rng.random(self.env.num_envs) < beta_k  # a new round redraws the drivers
-        frames, vectors, actions, clearance, depth, keeps, hard = [], [], [], [], [], [], []
+        frames, vectors, actions, clearance, depth, keeps, hard, route = [], [], [], [], [], [], [], []
         for t in range(max(1, n_steps // self.env.num_envs)):
             teacher = np.stack([np.asarray(info["teacher_action"], np.float32) for info in self.labels])
             seen = np.stack([np.asarray(info.get("teacher_clearance", ()), np.float32) for info in self.labels])
             near = np.stack([np.asarray(info.get("teacher_depth", np.zeros((0, 0))), np.uint8) for info in self.labels])
+            ahead = np.stack([np.asarray(info.get("teacher_waypoints", np.zeros((0, 2))), np.float32)
+                              for info in self.labels])
             stuck = np.array([bool(info.get("teacher_stuck", False)) for info in self.labels])
             with torch.no_grad():
                 image = torch.from_numpy(self.obs["image"])
@@ -310,6 +327,7 @@ class Collector:
             actions.append(teacher[keep])
             clearance.append(seen[keep])  # [n, K]; [n, 0] without the target
             depth.append(near[keep])  # [n, 9, 16]; [n, 0, 0] without the target
+            route.append(ahead[keep])  # [n, K, 2]; [n, 0, 2] without the target
             stats.dropped_stuck += int((~keep).sum())
             keeps.append(keep)
             hard.append(np.zeros(self.env.num_envs, bool))  # [n_envs], set back in time below
@@ -334,7 +352,8 @@ class Collector:
                     self.labels[i] = info
             self._check_labels()
         flags = np.concatenate([h[k] for h, k in zip(hard, keeps)])  # [N] the kept states' flags
-        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance, depth)), flags)
+        batch = Batch(*(np.concatenate(a) for a in (frames, vectors, actions, clearance, depth)), flags,
+                      np.concatenate(route))
         stats.labels, stats.hard, stats.wall_s = len(batch.actions), int(flags.sum()), time.perf_counter() - t0
         return batch, stats
 
@@ -368,7 +387,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     with probability `conf.mirror`
     (`Batch.mirrored`); a student with a clearance head also regresses the teacher's
     clearance readings, that loss weighted by `conf.clearance_weight`, and one with a depth head the
-    frame's blocked depth (`depth_loss`), weighted by `conf.depth_weight`; `conf.steer_weight`: see
+    frame's blocked depth (`depth_loss`), weighted by `conf.depth_weight`, and one with a route head the
+    teacher's route ahead (MSE in m), weighted by `conf.waypoint_weight`; `conf.steer_weight`: see
     `action_loss`. `averaged` (an exponential moving average of the student's weights,
     `conf.ema_decay`) is updated after every step. Returns the mean squared error of the actions to
     the labels (whatever the steering head) and the auxiliary losses, over the last tenth of the
@@ -378,7 +398,9 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
     data = data if isinstance(data, Dataset) else _one_part(data)
     aux = student.clearance_head is not None and conf.clearance_weight > 0
     with_depth = student.depth_head is not None and conf.depth_weight > 0
+    with_route = student.waypoint_head is not None and conf.waypoint_weight > 0
     n, losses, aux_losses, depth_losses, t0 = data.rows(), [], [], [], time.perf_counter()
+    route_losses = []
     hard = data.hard_rows() if conf.hard_fraction > 0 else np.zeros(0, np.int64)  # [H]
     n_hard = int(round(conf.hard_fraction * batch_size)) if len(hard) else 0
     gen = torch.Generator().manual_seed(int(rng.integers(2**31)))
@@ -406,6 +428,13 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
             near = depth_loss(pred.depth, batch.depth)
             depth_losses.append(near.item())
             loss = loss + conf.depth_weight * near
+        if with_route:
+            if batch.waypoints.shape[1] != pred.waypoints.shape[1]:
+                raise DistillError(f"waypoint_mismatch: the student predicts {pred.waypoints.shape[1]} route points, "
+                                   f"the data holds {batch.waypoints.shape[1]}")
+            ahead = F.mse_loss(pred.waypoints, torch.from_numpy(batch.waypoints))
+            route_losses.append(ahead.item())
+            loss = loss + conf.waypoint_weight * ahead
         optimizer.zero_grad()
         loss.backward()
         optimizer.step()
@@ -419,6 +448,8 @@ def fit(student: StudentPolicy, optimizer: torch.optim.Optimizer, data: Union[Da
         out["clearance_loss"] = float(np.mean(aux_losses[-tail:]))
     if with_depth:
         out["depth_loss"] = float(np.mean(depth_losses[-tail:]))
+    if with_route:
+        out["waypoint_loss"] = float(np.mean(route_losses[-tail:]))
     return out
 
 

@@ -50,13 +50,14 @@ class EnvSpec:
     teacher_depth_grid: Optional[tuple[int, int]] = None  # with teacher: also the frame's depth in h x w blocks
     teacher_replan: float = 0.0  # with teacher: m off its path at which it re-plans (0: every state)
     teacher_lookahead: float = 1.0  # with teacher: m ahead on its path its pure pursuit aims
+    teacher_waypoints: int = 0  # with teacher: also its route ahead as this many points
 
     def make(self) -> gym.Env:
         if self.module:
             importlib.import_module(self.module)
         env = gym.make(self.env_id, **self.kwargs)
         env = (TeacherLabels(env, self.teacher_replan, self.teacher_clearance_rays, self.teacher_depth_grid,
-                             self.teacher_lookahead)
+                             self.teacher_lookahead, self.teacher_waypoints)
                if self.teacher else env)
         env = ExpertActions(env) if self.expert else env
         env = StuckTermination(env, self.stuck_steps) if self.stuck_steps else env

@@ -36,6 +36,12 @@ Chosen for a 2-core CPU (`StudentConfig`, recorded in the run folder and the exp
   conv to K maps, a softmax over each map's cells with a learnt temperature, and each map's
   expected (x, y) in [-1, 1] (x negates under the mirror): the features say where in the view
   something is, which the flattened map's position-specific weights must learn cell by cell;
+- optionally (`waypoints` K > 0) a second head on the MLP's hidden layer predicting the teacher's route
+  ahead, K points `WAYPOINT_SPACING` m apart in the robot's frame (`TeacherLabels`), trained beside
+  the actions; with `drive_waypoints` the student steers by pure pursuit on its own predicted route
+  (the point `lookahead` m along it, the teacher's controller and the robot's wheelbase and steering
+  limit), as "Learning by Cheating" (Chen et al. 2019) drives its image student: the network says
+  where the way goes, the controller turns that into steering (in the exported graph too);
 - optionally (`clearance_rays` K > 0) a linear head from the latest frame's features to K
   clearance readings in [0, 1], trained as an auxiliary target and left out of the export;
 - optionally (`depth_target`) a 1 x 1 conv head on the latest frame's last conv map (5 x 8 at
@@ -57,10 +63,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from vid2sim.formats.robot import ROBOT
 from vid2sim.ranges import checked
 from vid2sim.training.policy import VECTOR_SCALE
+from vid2sim.training.wrappers import WAYPOINT_SPACING
 
 STACK = 6  # frames in the env observation
+DRIVING_SETTINGS = ("steer_gain", "mirror_average", "drive_waypoints", "lookahead")  # no weight depends on them
 
 
 @checked
@@ -80,6 +89,9 @@ class StudentConfig:
     steer_bins: int = 0  # steering as a distribution over K values in [-1, 1] (0: one regressed value)
     depth_target: bool = False  # auxiliary head: the latest frame's nearest depth per cell of the last conv map
     keypoints: int = 0  # frame features: K spatial-softmax keypoints of the last conv map (0: the flattened map)
+    waypoints: int = 0  # second head: the teacher's route ahead as K points WAYPOINT_SPACING m apart (0: none)
+    drive_waypoints: bool = False  # when driving: steer by pure pursuit on the predicted route (needs waypoints)
+    lookahead: float = 1.0  # m along the predicted route the pure pursuit aims (drive_waypoints)
     steer_gain: float = 1.0  # when driving: steering tanh(gain x pre-activation); the learner's loss sees gain 1
     # when driving: the mean of its action and the mirrored action for the mirrored view (frames flipped left
     # to right, the goal's heading negated), so left and right are treated exactly alike; the loss sees one pass
@@ -94,6 +106,11 @@ class StudentConfig:
             raise ValueError(f"student channels must list 4 conv widths, got {list(self.channels)}")
         if self.steer_bins in (1, 2):
             raise ValueError(f"student steer_bins must be 0 (regressed steering) or >= 3, got {self.steer_bins}")
+        if self.drive_waypoints and not self.waypoints:
+            raise ValueError("student drive_waypoints needs a route head (waypoints > 0)")
+        if self.drive_waypoints and self.lookahead > self.waypoints * WAYPOINT_SPACING:
+            raise ValueError(f"student lookahead {self.lookahead} m lies past its {self.waypoints} waypoints "
+                             f"({self.waypoints * WAYPOINT_SPACING} m of route)")
         if self.steer_bins and self.steer_gain != 1.0:
             raise ValueError(f"student steer_gain applies to a regressed steering; with steer_bins "
                              f"{self.steer_bins} it must be 1, got {self.steer_gain}")
@@ -147,6 +164,8 @@ class StudentPolicy(nn.Module):
         # [K] steering value of each bin, with steer_bins (derived from the config, so not in the state dict)
         bins = torch.linspace(-1.0, 1.0, config.steer_bins) if config.steer_bins else None
         self.register_buffer("steer_values", bins, persistent=False)
+        # the MLP's hidden layer -> the teacher's route ahead [K, 2] (robot frame, m)
+        self.waypoint_head = nn.Linear(config.hidden, 2 * config.waypoints) if config.waypoints else None
         # trained only (not in the exported graph): the latest frame's features -> clearance [K]
         self.clearance_head = nn.Linear(config.frame_dim, config.clearance_rays) if config.clearance_rays else None
         # trained only: the latest frame's last conv map [c4, h', w'] -> nearest depth / 5 m per cell [h', w']
@@ -172,12 +191,20 @@ class StudentPolicy(nn.Module):
         """Preprocessed frames [B, frames, C, h, w] (0..255) + vector [B, 6, 2] -> the actions it drives
         with [B, 2] (steering with the config's `steer_gain`; with `mirror_average`, averaged with its own
         mirror image)."""
-        actions = self.outputs(frames, vector, self.config.steer_gain).actions
+        actions = self._driven(self.outputs(frames, vector, self.config.steer_gain))
         if not self.config.mirror_average:
             return actions
         flip = actions.new_tensor([1.0, -1.0])  # [2]: distance and speed kept, heading and steering negated
-        mirrored = self.outputs(frames.flip(-1), vector * flip, self.config.steer_gain).actions * flip
+        mirrored = self._driven(self.outputs(frames.flip(-1), vector * flip, self.config.steer_gain)) * flip
         return 0.5 * (actions + mirrored)
+
+    def _driven(self, out: "StudentOutputs") -> torch.Tensor:
+        """The actions it drives with [B, 2]: the head's, or with `drive_waypoints` the head's speed and
+        pure pursuit's steering on the predicted route."""
+        if not self.config.drive_waypoints:
+            return out.actions
+        steering = pursuit_steering(out.waypoints, self.config.lookahead)
+        return torch.stack([out.actions[:, 0], steering], dim=1)
 
     def outputs(self, frames: torch.Tensor, vector: torch.Tensor, steer_gain: float = 1.0) -> "StudentOutputs":
         """The actions (regressed steering tanh(steer_gain x pre-activation); the learner's losses use 1),
@@ -189,7 +216,8 @@ class StudentPolicy(nn.Module):
         per_frame = self.frame_head(features).reshape(b, k, -1)  # [B, frames, frame_dim]
         recent = vector[:, -self.config.vector_history:]  # [B, vector_history, 2]
         vec = self.vector_head(recent.float().flatten(1) * self.vector_scale)
-        out = self.head(torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, 2] or [B, 1 + K]
+        hidden = self.head[:2](torch.cat([per_frame.flatten(1), vec], dim=1))  # [B, hidden]
+        out = self.head[2:](hidden)  # [B, 2] or [B, 1 + K]
         logits = out[:, 1:] if self.config.steer_bins else None
         steering = (steer_from_logits(logits, self.steer_values) if logits is not None
                     else torch.tanh(steer_gain * out[:, 1]))
@@ -198,7 +226,9 @@ class StudentPolicy(nn.Module):
                      else actions.new_zeros(b, 0))  # [B, K] in [0, 1]
         depth = (torch.sigmoid(self.depth_head(maps.reshape(b, k, *maps.shape[1:])[:, -1]))[:, 0]
                  if self.depth_head is not None else actions.new_zeros(b, 0, 0))  # [B, h', w'] in [0, 1]
-        return StudentOutputs(actions, logits, clearance, depth)
+        waypoints = (self.waypoint_head(hidden).reshape(b, -1, 2) if self.waypoint_head is not None
+                     else actions.new_zeros(b, 0, 2))  # [B, K, 2] robot frame, m
+        return StudentOutputs(actions, logits, clearance, depth, waypoints)
 
     def forward(self, image: torch.Tensor, vector: torch.Tensor) -> torch.Tensor:
         return self.act(self.preprocess(image), vector)
@@ -219,10 +249,11 @@ class StudentPolicy(nn.Module):
 
     def driving_with(self, **settings) -> "StudentPolicy":
         """The same weights driving with other `StudentConfig` driving settings (`steer_gain`,
-        `mirror_average`; a copy, this student is unchanged)."""
-        unknown = set(settings) - {"steer_gain", "mirror_average"}
+        `mirror_average`, `drive_waypoints`, `lookahead`; a copy, this student is unchanged)."""
+        unknown = set(settings) - set(DRIVING_SETTINGS)
         if unknown:
-            raise ValueError(f"driving_with: {sorted(unknown)} are not driving settings (steer_gain, mirror_average)")
+            raise ValueError(f"driving_with: {sorted(unknown)} are not driving settings "
+                             f"({', '.join(DRIVING_SETTINGS)})")
         ckpt = self.checkpoint()
         ckpt["config"].update(settings)
         return StudentPolicy.from_checkpoint(ckpt)
@@ -256,6 +287,21 @@ class StudentOutputs:
     steer_logits: Optional[torch.Tensor]  # [B, K] with steer_bins, else None
     clearance: torch.Tensor  # [B, clearance_rays] in [0, 1] ([B, 0] without the head)
     depth: torch.Tensor  # [B, h', w'] nearest depth / 5 m per cell of the last conv map ([B, 0, 0] without)
+    waypoints: torch.Tensor  # [B, K, 2] the predicted route ahead, robot frame, m ([B, 0, 2] without the head)
+
+
+def pursuit_steering(waypoints: torch.Tensor, lookahead: float) -> torch.Tensor:
+    """Route points [B, K, 2] (`WAYPOINT_SPACING` m apart, robot frame: x forward, y left) -> normalised
+    steering [B] in [-1, 1]: pure pursuit of the point `lookahead` m along the route (interpolated)
+    for the robot's bicycle model, the teacher's controller (`envs/expert.py`):
+    atan(2 L sin(alpha) / l_d) = atan(2 L y / l_d^2), over the steering limit."""
+    pos = min(max(lookahead / WAYPOINT_SPACING - 1.0, 0.0), waypoints.shape[1] - 1.0)  # index into K
+    lo = min(int(math.floor(pos)), waypoints.shape[1] - 1)
+    hi, frac = min(lo + 1, waypoints.shape[1] - 1), pos - lo
+    target = waypoints[:, lo] * (1.0 - frac) + waypoints[:, hi] * frac  # [B, 2]
+    ld2 = target.square().sum(dim=1).clamp_min(1e-6)  # [B]
+    steer = torch.atan(2.0 * ROBOT.wheelbase_m * target[:, 1] / ld2)  # rad
+    return (steer / math.radians(ROBOT.max_steer_deg)).clamp(-1.0, 1.0)
 
 
 def steer_from_logits(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:

@@ -32,6 +32,10 @@ With `depth_grid` = (h, w) it adds `info["teacher_depth"]` uint8 [h, w]: the lat
 (obstacles and pedestrians included) as the nearest depth in each of h x w equal blocks of the
 image, / `DEPTH_RANGE` m (saturating at 255): what the camera shows and how near, a dense auxiliary
 target for the student's encoder (`depth_blocks`).
+With `waypoints` = K > 0 it adds `info["teacher_waypoints"]` float32 [K, 2]: the teacher's route ahead
+as K points `WAYPOINT_SPACING` m apart along it (from the route point nearest the robot), in the
+robot's frame (x forward, y left, metres; past the goal the goal repeats): where the teacher will
+drive, which a student can learn to predict and follow (Chen et al., "Learning by Cheating", 2019).
 """
 
 from __future__ import annotations
@@ -48,6 +52,7 @@ from vid2sim.envs.sensing import RAY_HEIGHT, camera_hfov_deg, mesh_ranges, ray_a
 
 STUCK = "stuck"
 CLEARANCE_RANGE = 5.0  # m: the teacher's clearance readings saturate here
+WAYPOINT_SPACING = 0.5  # m along the teacher's route between its waypoint labels
 
 
 class StuckTermination(gym.Wrapper):
@@ -104,7 +109,8 @@ class TeacherLabels(gym.Wrapper):
     """Adds the scripted expert's label of the current state to `info` (see the module docs)."""
 
     def __init__(self, env: gym.Env, replan_distance: float = 0.0, clearance_rays: int = 0,
-                 depth_grid: Optional[tuple[int, int]] = None, lookahead: float = ExpertConfig.lookahead) -> None:
+                 depth_grid: Optional[tuple[int, int]] = None, lookahead: float = ExpertConfig.lookahead,
+                 waypoints: int = 0) -> None:
         super().__init__(env)
         if not hasattr(env.unwrapped, "expert_path"):
             raise TeacherError(f"teacher_unavailable: env {env.unwrapped.__class__.__name__} has no A* expert "
@@ -124,6 +130,9 @@ class TeacherLabels(gym.Wrapper):
         self.depth_grid = tuple(depth_grid) if depth_grid else None
         if self.depth_grid:
             check_depth_grid(self.depth_grid, (cam.height, cam.width))
+        if waypoints < 0:
+            raise ValueError(f"waypoints must be >= 0, got {waypoints}")
+        self.waypoints = waypoints
 
     def clearance(self) -> np.ndarray:
         """Privileged clearance over the camera's view [K] in [0, 1] (see the module docs)."""
@@ -150,6 +159,9 @@ class TeacherLabels(gym.Wrapper):
             label["teacher_clearance"] = self.clearance()
         if self.depth_grid:
             label["teacher_depth"] = depth_blocks(self.env.unwrapped.last_depth, self.depth_grid)
+        if self.waypoints:
+            label["teacher_waypoints"] = route_waypoints(self.expert.path, self.expert.index,
+                                                         self.env.unwrapped.robot_pose(), self.waypoints)
         return label
 
     def reset(self, **kwargs: Any):
@@ -182,3 +194,18 @@ class ExpertActions(gym.Wrapper):
 
     def expert_action(self) -> np.ndarray:
         return self.expert.act(self.env)  # [2] speed, steering in [-1, 1]
+
+
+def route_waypoints(path: np.ndarray, start: int, pose: tuple[float, float, float], k: int,
+                    spacing: float = WAYPOINT_SPACING) -> np.ndarray:
+    """k points [k, 2] spacing m apart along the route path [P, 2] from its point `start` (the one
+    nearest the robot), in the robot's frame at pose (x, y, yaw): x forward, y left, metres; points
+    past the route's end are its end."""
+    route = np.asarray(path, np.float64)[start:]  # [P', 2]
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(route, axis=0).T))])  # [P']
+    want = spacing * np.arange(1, k + 1)  # [k]
+    px, py = np.interp(want, arc, route[:, 0]), np.interp(want, arc, route[:, 1])  # past the end: the end
+    x, y, yaw = pose
+    c, s = math.cos(yaw), math.sin(yaw)
+    dx, dy = px - x, py - y
+    return np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1).astype(np.float32)
