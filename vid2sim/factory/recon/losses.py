@@ -17,6 +17,7 @@ import torch.nn.functional as F
 
 from vid2sim.factory.recon.ncc_fused import ncc_applies, ncc_depth_loss_fused
 from vid2sim.factory.recon.normals_fused import geo_loss_fused, normal_loss_fused, normals_apply
+from vid2sim.factory.recon.scale_fused import scale_applies, scale_loss_fused
 from vid2sim.factory.recon.ssim_fused import fused_applies, gaussian_window_1d, ssim_map_fused
 
 
@@ -224,11 +225,15 @@ def geo_consistency_loss(normals: torch.Tensor, depth: torch.Tensor,
     return (w * (1.0 - dots)).sum() / den
 
 
-def scale_loss(log_scales: torch.Tensor) -> torch.Tensor:
+def scale_loss(log_scales: torch.Tensor, fused: bool = True) -> torch.Tensor:
     """Flat-Gaussian loss: 1/N sum_i min(s_i1, s_i2, s_i3). log_scales [N, 3] -> scalar.
 
     exp is increasing, so the smallest scale is exp of the smallest log scale: one exp per
-    Gaussian instead of three (the same value and gradient)."""
+    Gaussian instead of three (the same value and gradient). CPU log scales go through
+    scale_fused.py (one pass that also writes the gradient) unless `fused` is False: this torch
+    code is its reference."""
+    if fused and scale_applies(log_scales):
+        return scale_loss_fused(log_scales)
     if log_scales.shape[0] == 0:
         return log_scales.sum() * 0.0
     return torch.exp(log_scales.min(dim=1).values).mean()
