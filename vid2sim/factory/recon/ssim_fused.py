@@ -81,30 +81,34 @@ def _blur(stack, g):
     return out
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True)
 def _moments(x, y):
-    """x, y [C, H, W] -> the five moment images [5C, H, W]: x, y, x^2, y^2, xy."""
-    c = x.shape[0]
-    st = np.empty((5 * c,) + x.shape[1:], np.float32)
-    for q in range(c):
-        st[q] = x[q]
-        st[c + q] = y[q]
-        st[2 * c + q] = x[q] * x[q]
-        st[3 * c + q] = y[q] * y[q]
-        st[4 * c + q] = x[q] * y[q]
+    """x, y [C, H, W] -> the five moment images [5C, H, W]: x, y, x^2, y^2, xy (rows in parallel)."""
+    c, h, w = x.shape
+    st = np.empty((5 * c, h, w), np.float32)
+    for i in prange(h):
+        for q in range(c):
+            for j in range(w):
+                a, b = x[q, i, j], y[q, i, j]
+                st[q, i, j] = a
+                st[c + q, i, j] = b
+                st[2 * c + q, i, j] = a * a
+                st[3 * c + q, i, j] = b * b
+                st[4 * c + q, i, j] = a * b
     return st
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True)
 def _ssim_terms(m, c):
     """From the blurred moments m [5C, H, W]: the map [H, W] (channel mean) and, per channel,
-    the partial derivatives of S by mx, Exx and Exy, [3, C, H, W]."""
+    the partial derivatives of S by mx, Exx and Exy, [3, C, H, W] (rows in parallel; each
+    pixel sums its channels in order, so the map does not depend on the threads)."""
     _, h, w = m.shape
     out = np.zeros((h, w), np.float32)
     dd = np.empty((3, c, h, w), np.float32)
     inv_c = np.float32(1.0 / c)
-    for q in range(c):
-        for i in range(h):
+    for i in prange(h):
+        for q in range(c):
             for j in range(w):
                 mx, my = m[q, i, j], m[c + q, i, j]
                 exx, eyy, exy = m[2 * c + q, i, j], m[3 * c + q, i, j], m[4 * c + q, i, j]
@@ -121,27 +125,31 @@ def _ssim_terms(m, c):
     return out, dd
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True)
 def _grad_fields(dd, dmap, c):
     """Scale the partials by the upstream gradient of the map (dmap [H, W], shared by the C
-    channels through the mean): [3C, H, W] ready to blur."""
+    channels through the mean): [3C, H, W] ready to blur (rows in parallel)."""
     _, _, h, w = dd.shape
     f = np.empty((3 * c, h, w), np.float32)
     inv_c = np.float32(1.0 / c)
-    for t in range(3):
-        for q in range(c):
-            for i in range(h):
+    for i in prange(h):
+        for t in range(3):
+            for q in range(c):
                 for j in range(w):
                     f[t * c + q, i, j] = dd[t, q, i, j] * dmap[i, j] * inv_c
     return f
 
 
-@njit(cache=True, fastmath=True)
+@njit(cache=True, parallel=True, fastmath=True)
 def _grad_x(b, x, y, c):
-    """dL/dx [C, H, W] from the blurred fields b [3C, H, W] (mx, Exx, Exy parts)."""
+    """dL/dx [C, H, W] from the blurred fields b [3C, H, W] (mx, Exx, Exy parts; rows in parallel)."""
+    _, h, w = x.shape
     g = np.empty_like(x)
-    for q in range(c):
-        g[q] = b[q] + 2.0 * x[q] * b[c + q] + y[q] * b[2 * c + q]
+    for i in prange(h):
+        for q in range(c):
+            for j in range(w):
+                g[q, i, j] = (b[q, i, j] + np.float32(2.0) * x[q, i, j] * b[c + q, i, j]
+                              + y[q, i, j] * b[2 * c + q, i, j])
     return g
 
 
