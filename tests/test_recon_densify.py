@@ -101,3 +101,21 @@ def test_quat_to_rotmat_is_orthonormal():
     assert torch.allclose(R @ R.transpose(1, 2), torch.eye(3).expand(5, 3, 3), atol=1e-5)
     assert torch.allclose(torch.linalg.det(R), torch.ones(5), atol=1e-5)
     assert torch.allclose(quat_to_rotmat(torch.tensor([[2.0, 0, 0, 0]]))[0], torch.eye(3))
+
+
+def test_the_numba_accumulation_equals_the_torch_ops():
+    """float32 statistics with int32 radii go through one numba pass; the same sums as the torch
+    ops every other input takes (equal bit for bit where both contract x x + y y into an FMA)."""
+    g = torch.Generator().manual_seed(0)
+    n = 5000
+    fast, ref = DensifyStats.zeros(n), DensifyStats.zeros(n)
+    for scale in (1e-6, 1e-3, 1.0):
+        grad2d, absgrad = torch.randn(n, 2, generator=g) * scale, torch.randn(n, 2, generator=g).abs() * scale
+        radii = torch.randint(-1, 30, (n,), generator=g, dtype=torch.int32)  # <= 0: hidden
+        radii[:10] = 0  # never seen
+        fast.accumulate(grad2d, absgrad, radii, 320, 150)
+        ref.accumulate(grad2d, absgrad, radii.long(), 320, 150)  # int64 radii: the torch ops
+    torch.testing.assert_close(fast.grad, ref.grad, rtol=1e-6, atol=0.0)
+    torch.testing.assert_close(fast.absgrad, ref.absgrad, rtol=1e-6, atol=0.0)
+    assert torch.equal(fast.count, ref.count) and torch.equal(fast.max_radius, ref.max_radius)
+    assert fast.count.max() == 3 and (fast.count == 0).any()
