@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, prange
 
 F32 = np.float32
 ZERO, ONE = F32(0.0), F32(1.0)
@@ -32,11 +32,11 @@ def _put3(out, i, j, x, y, z):
     out[i, j, 2] = z
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", parallel=True)
 def _forward(C, a, D, N, bg, rgb, depth, normal):
-    """C, N [H, W, 3], a, D [H, W], bg [3] -> rgb, normal [H, W, 3], depth [H, W]."""
+    """C, N [H, W, 3], a, D [H, W], bg [3] -> rgb, normal [H, W, 3], depth [H, W] (rows in parallel)."""
     h, w = a.shape
-    for i in range(h):
+    for i in prange(h):
         for j in range(w):
             al = a[i, j]
             om = ONE - al
@@ -53,11 +53,11 @@ def _forward(C, a, D, N, bg, rgb, depth, normal):
                 _put3(normal, i, j, ZERO, ZERO, ZERO)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", parallel=True)
 def _backward(a, D, N, bg, g_rgb, g_depth, g_normal, dC, da, dD, dN):
-    """Gradients of C, a, D, N from those of rgb, depth, normal."""
+    """Gradients of C, a, D, N from those of rgb, depth, normal (rows in parallel)."""
     h, w = a.shape
-    for i in range(h):
+    for i in prange(h):
         for j in range(w):
             al = a[i, j]
             gr0, gr1, gr2 = g_rgb[i, j, 0], g_rgb[i, j, 1], g_rgb[i, j, 2]
