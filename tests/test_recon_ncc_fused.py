@@ -56,3 +56,24 @@ def test_fused_refuses_what_it_cannot_serve():
         ncc_depth_loss_fused(r, torch.zeros(8, 9), torch.ones(8, 8, dtype=torch.bool))
     with pytest.raises(ValueError, match="ncc_depth_loss_fused"):
         ncc_depth_loss_fused(r, torch.zeros(8, 8, requires_grad=True), torch.ones(8, 8, dtype=torch.bool))
+
+
+def test_fused_ncc_does_not_depend_on_the_thread_count():
+    """Rows of patches run in parallel phases and their sums are added in row order: one thread
+    and two give the same loss and gradient bit for bit."""
+    import numba
+    g = torch.Generator().manual_seed(0)
+    r = 2.0 + torch.rand(150, 320, generator=g)
+    d = 1.1 * r + 0.05 * torch.rand(150, 320, generator=g)
+    valid = torch.rand(150, 320, generator=g) > 0.1
+    before, out = numba.get_num_threads(), []
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            x = r.clone().requires_grad_(True)
+            loss = ncc_depth_loss_fused(x, d, valid)
+            loss.backward()
+            out.append((float(loss.detach()), x.grad))
+    finally:
+        numba.set_num_threads(before)
+    assert out[0][0] == out[1][0] and torch.equal(out[0][1], out[1][1])

@@ -22,48 +22,69 @@ import math
 
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, prange
 
 from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _ncc_patches(r, d, m, patch, stride, min_valid, eps, grad):
     """Sum of the kept patches' correlations and their count; grad [H, W] (zeroed by the caller)
-    accumulates the sum of d ncc_p / d r over the kept patches."""
+    accumulates the sum of d ncc_p / d r over the kept patches. Rows of patches run in parallel,
+    in phases whose rows' pixels do not overlap (rows p, p + phases, ...: patch <= phases x
+    stride); per-row sums are added in row order, so the result does not depend on the threads."""
     H, W = r.shape
+    n_rows = max((H - patch) // stride + 1, 0)
+    phases = -(-patch // stride)  # ceil: rows that far apart share no pixel
+    row_total = np.zeros(n_rows)
+    row_kept = np.zeros(n_rows, np.int64)
+    for phase in range(phases):
+        for k in prange((n_rows - phase + phases - 1) // phases):
+            row = phase + k * phases
+            row_total[row], row_kept[row] = _ncc_row(r, d, m, row * stride, patch, stride, min_valid, eps,
+                                                     grad)
+    total, kept = 0.0, 0
+    for row in range(n_rows):
+        total += row_total[row]
+        kept += row_kept[row]
+    return total, kept
+
+
+@njit(cache=True)
+def _ncc_row(r, d, m, i0, patch, stride, min_valid, eps, grad):
+    """The patches of one row (top at i0): (sum of kept correlations, kept); adds their gradient."""
+    W = r.shape[1]
     total, kept = 0.0, 0
     need = min_valid * patch * patch
-    for i0 in range(0, H - patch + 1, stride):
-        for j0 in range(0, W - patch + 1, stride):
-            n, sr, sd = 0, 0.0, 0.0
-            for i in range(i0, i0 + patch):
-                for j in range(j0, j0 + patch):
-                    if m[i, j]:
-                        n += 1
-                        sr += r[i, j]
-                        sd += d[i, j]
-            ns = max(n, 1)
-            mr, md = sr / ns, sd / ns
-            vr, vd, cv = 0.0, 0.0, 0.0
-            for i in range(i0, i0 + patch):
-                for j in range(j0, j0 + patch):
-                    if m[i, j]:
-                        a, b = r[i, j] - mr, d[i, j] - md
-                        vr += a * a
-                        vd += b * b
-                        cv += a * b
-            if n < need or not math.sqrt(vd / ns) > 1e-4 * max(abs(md), 1e-6):
-                continue
-            s_r, s_d = math.sqrt(vr / ns + eps), math.sqrt(vd / ns + eps)
-            ncc = cv / ns / (s_r * s_d)
-            total += ncc
-            kept += 1
-            scale = 1.0 / (ns * s_r)
-            for i in range(i0, i0 + patch):
-                for j in range(j0, j0 + patch):
-                    if m[i, j]:
-                        grad[i, j] += ((d[i, j] - md) / s_d - ncc * (r[i, j] - mr) / s_r) * scale
+    for j0 in range(0, W - patch + 1, stride):
+        n, sr, sd = 0, 0.0, 0.0
+        for i in range(i0, i0 + patch):
+            for j in range(j0, j0 + patch):
+                if m[i, j]:
+                    n += 1
+                    sr += r[i, j]
+                    sd += d[i, j]
+        ns = max(n, 1)
+        mr, md = sr / ns, sd / ns
+        vr, vd, cv = 0.0, 0.0, 0.0
+        for i in range(i0, i0 + patch):
+            for j in range(j0, j0 + patch):
+                if m[i, j]:
+                    a, b = r[i, j] - mr, d[i, j] - md
+                    vr += a * a
+                    vd += b * b
+                    cv += a * b
+        if n < need or not math.sqrt(vd / ns) > 1e-4 * max(abs(md), 1e-6):
+            continue
+        s_r, s_d = math.sqrt(vr / ns + eps), math.sqrt(vd / ns + eps)
+        ncc = cv / ns / (s_r * s_d)
+        total += ncc
+        kept += 1
+        scale = 1.0 / (ns * s_r)
+        for i in range(i0, i0 + patch):
+            for j in range(j0, j0 + patch):
+                if m[i, j]:
+                    grad[i, j] += ((d[i, j] - md) / s_d - ncc * (r[i, j] - mr) / s_r) * scale
     return total, kept
 
 
