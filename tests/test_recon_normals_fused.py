@@ -55,3 +55,25 @@ def test_losses_dispatch_to_the_fused_kernels_and_handle_empty_masks():
         normal_loss_fused(n, prior[:-1], valid)
     with pytest.raises(ValueError, match="geo_loss_fused"):
         geo_loss_fused(n, depth[:, :-1], valid)
+
+
+def test_fused_normal_and_geo_losses_do_not_depend_on_the_thread_count():
+    """Rows run in parallel (the geo loss's in two phases) and their sums are added in row order:
+    one thread and two give the same losses and gradients bit for bit."""
+    import numba
+    n, prior, depth, valid = _maps(150, 320, torch.float32, seed=3)
+    before, out = numba.get_num_threads(), []
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            got = []
+            for fn, other in ((normal_loss_fused, prior), (geo_loss_fused, depth)):
+                x = n.clone().requires_grad_(True)
+                loss = fn(x, other, valid)
+                loss.backward()
+                got.append((float(loss.detach()), x.grad))
+            out.append(got)
+    finally:
+        numba.set_num_threads(before)
+    for (l1, g1), (l2, g2) in zip(*out):
+        assert l1 == l2 and torch.equal(g1, g2)

@@ -20,62 +20,95 @@ import math
 
 import numpy as np
 import torch
-from numba import njit
+from numba import njit, prange
 
 from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
 
 EPS = 1e-8  # losses.normal_loss's cosine eps
 
 
-@njit(cache=True)
+@njit(cache=True, parallel=True)
 def _normal_terms(r, p, valid, eps, grad):
     """(sum of cosines over valid pixels, their count); grad [H, W, 3] (zeroed by the caller)
-    = d cos / d r there."""
-    H, W, _ = r.shape
+    = d cos / d r there. Rows in parallel; their sums are added in row order (no dependence on
+    the thread count)."""
+    H = r.shape[0]
+    row_total = np.zeros(H)
+    row_count = np.zeros(H, np.int64)
+    for i in prange(H):
+        row_total[i], row_count[i] = _normal_row(r, p, valid, eps, grad, i)
     total, count = 0.0, 0
     for i in range(H):
-        for j in range(W):
-            if not valid[i, j]:
-                continue
-            rx, ry, rz = float(r[i, j, 0]), float(r[i, j, 1]), float(r[i, j, 2])
-            px, py, pz = float(p[i, j, 0]), float(p[i, j, 1]), float(p[i, j, 2])
-            nr = math.sqrt(rx * rx + ry * ry + rz * rz)
-            npp = max(math.sqrt(px * px + py * py + pz * pz), eps)
-            vx, vy, vz = px / npp, py / npp, pz / npp
-            d = max(nr, eps)
-            cos = (rx * vx + ry * vy + rz * vz) / d
-            ux, uy, uz = (rx / nr, ry / nr, rz / nr) if nr > 0.0 else (0.0, 0.0, 0.0)
-            grad[i, j, 0] = (vx - cos * ux) / d  # torch's: the norm's derivative even when clamped
-            grad[i, j, 1] = (vy - cos * uy) / d
-            grad[i, j, 2] = (vz - cos * uz) / d
-            total += cos
-            count += 1
+        total += row_total[i]
+        count += row_count[i]
     return total, count
 
 
 @njit(cache=True)
+def _normal_row(r, p, valid, eps, grad, i):
+    """Row i of `_normal_terms`: (sum of cosines, count)."""
+    W = r.shape[1]
+    total, count = 0.0, 0
+    for j in range(W):
+        if not valid[i, j]:
+            continue
+        rx, ry, rz = float(r[i, j, 0]), float(r[i, j, 1]), float(r[i, j, 2])
+        px, py, pz = float(p[i, j, 0]), float(p[i, j, 1]), float(p[i, j, 2])
+        nr = math.sqrt(rx * rx + ry * ry + rz * rz)
+        npp = max(math.sqrt(px * px + py * py + pz * pz), eps)
+        vx, vy, vz = px / npp, py / npp, pz / npp
+        d = max(nr, eps)
+        cos = (rx * vx + ry * vy + rz * vz) / d
+        ux, uy, uz = (rx / nr, ry / nr, rz / nr) if nr > 0.0 else (0.0, 0.0, 0.0)
+        grad[i, j, 0] = (vx - cos * ux) / d  # torch's: the norm's derivative even when clamped
+        grad[i, j, 1] = (vy - cos * uy) / d
+        grad[i, j, 2] = (vz - cos * uz) / d
+        total += cos
+        count += 1
+    return total, count
+
+
+@njit(cache=True, parallel=True)
 def _geo_terms(n, depth, valid, grad):
-    """(sum w (1 - dots), sum w); grad [H, W, 3] accumulates d sum w (1 - dots) / d n."""
-    H, W, _ = n.shape
+    """(sum w (1 - dots), sum w); grad [H, W, 3] accumulates d sum w (1 - dots) / d n. Row i
+    writes rows i and i + 1: even rows in parallel, then odd rows; the row sums are added in row
+    order (no dependence on the thread count)."""
+    H = n.shape[0]
+    row_num = np.zeros(max(H - 1, 0))
+    row_den = np.zeros(max(H - 1, 0))
+    for phase in range(2):
+        for k in prange((H - 1 - phase + 1) // 2):
+            i = phase + 2 * k
+            row_num[i], row_den[i] = _geo_row(n, depth, valid, grad, i)
     num, den = 0.0, 0.0
     for i in range(H - 1):
-        for j in range(W - 1):
-            if not (valid[i, j] and valid[i, j + 1] and valid[i + 1, j]):
-                continue
-            gx = depth[i, j + 1] - depth[i, j]
-            gy = depth[i + 1, j] - depth[i, j]
-            w = min(max(1.0 - math.sqrt(float(gx) * gx + float(gy) * gy), 0.0), 1.0)
-            if w == 0.0:
-                continue
-            dots = 0.0
-            for c in range(3):
-                dots += 0.5 * float(n[i, j, c]) * (float(n[i, j + 1, c]) + float(n[i + 1, j, c]))
-            num += w * (1.0 - dots)
-            den += w
-            for c in range(3):
-                grad[i, j, c] -= 0.5 * w * (n[i, j + 1, c] + n[i + 1, j, c])
-                grad[i, j + 1, c] -= 0.5 * w * n[i, j, c]
-                grad[i + 1, j, c] -= 0.5 * w * n[i, j, c]
+        num += row_num[i]
+        den += row_den[i]
+    return num, den
+
+
+@njit(cache=True)
+def _geo_row(n, depth, valid, grad, i):
+    """Row i of `_geo_terms`: (sum w (1 - dots), sum w)."""
+    W = n.shape[1]
+    num, den = 0.0, 0.0
+    for j in range(W - 1):
+        if not (valid[i, j] and valid[i, j + 1] and valid[i + 1, j]):
+            continue
+        gx = depth[i, j + 1] - depth[i, j]
+        gy = depth[i + 1, j] - depth[i, j]
+        w = min(max(1.0 - math.sqrt(float(gx) * gx + float(gy) * gy), 0.0), 1.0)
+        if w == 0.0:
+            continue
+        dots = 0.0
+        for c in range(3):
+            dots += 0.5 * float(n[i, j, c]) * (float(n[i, j + 1, c]) + float(n[i + 1, j, c]))
+        num += w * (1.0 - dots)
+        den += w
+        for c in range(3):
+            grad[i, j, c] -= 0.5 * w * (n[i, j + 1, c] + n[i + 1, j, c])
+            grad[i, j + 1, c] -= 0.5 * w * n[i, j, c]
+            grad[i + 1, j, c] -= 0.5 * w * n[i, j, c]
     return num, den
 
 
