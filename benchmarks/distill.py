@@ -227,6 +227,10 @@ def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[
 def run_heldout(args, run: Run) -> None:
     reg = registry(args)
     args.train_ids, args.heldout_ids = extra_street_sides(args, reg)
+    if args.train_streets:  # a diagnostic: train on named streets instead of the split's training side
+        args.train_ids = list(args.train_streets)
+    if args.eval_streets:
+        args.heldout_ids = list(args.eval_streets)
     successes: dict[str, list[float]] = {"pointnav": [], "socialnav": []}
     trained: list[tuple[Path, dict]] = []
     for seed in args.seeds:
@@ -433,6 +437,11 @@ def main() -> None:
     ap.add_argument("--extra-streets", type=int, default=0,
                     help="heldout: this many more streets (seeds after --streets') on the training side; the held-out "
                          "streets stay those of the first --streets (give the run its own --root)")
+    ap.add_argument("--train-streets", nargs="+", default=None, metavar="ID",
+                    help="heldout: train on these scene ids instead of the split's training side (a diagnostic, "
+                         "e.g. one street's own student; give it its own --tag)")
+    ap.add_argument("--eval-streets", nargs="+", default=None, metavar="ID",
+                    help="heldout: evaluate on these scene ids instead of the split's held-out streets")
     ap.add_argument("--tag", default="")
     add_run_args(ap)
     args = ap.parse_args()
