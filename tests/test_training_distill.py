@@ -157,6 +157,16 @@ def test_frame_stride_picks_every_kth_frame_back_from_the_latest():
     assert student.preprocess(image)[0, :, 0, 0, 0].tolist() == [1.0, 3.0, 5.0]
 
 
+def assert_exported_drives_alike(student: StudentPolicy, folder, image: torch.Tensor, vector: torch.Tensor,
+                                 driven: torch.Tensor) -> None:
+    """The student saved into `folder` and exported: both exported backends drive as `driven`."""
+    student.save(folder / STUDENT_NAME)
+    out = export_policy(folder, folder / "export")
+    for backend in ("onnx", "torch"):
+        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image.numpy(), vector.numpy()),
+                                   driven.numpy(), atol=1e-5)
+
+
 def test_a_short_vector_history_reads_only_the_latest_goal_vectors_and_exports(tmp_path):
     """vector_history 1: the older goal vectors (which reveal the steering just applied) change nothing,
     the latest one does; the exported graph takes the env's whole [6, 2] history and agrees."""
@@ -226,11 +236,7 @@ def test_the_mirror_average_treats_left_and_right_alike_and_exports(tmp_path):
         torch.testing.assert_close(driven, 0.5 * (plain + mirrored_plain * flip))
         torch.testing.assert_close(mirrored, driven * flip)
         assert not torch.allclose(mirrored_plain, plain * flip, atol=1e-3)  # the plain student is not symmetric
-    both.save(tmp_path / STUDENT_NAME)
-    out = export_policy(tmp_path, tmp_path / "export")
-    for backend in ("onnx", "torch"):
-        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image.numpy(), vector.numpy()),
-                                   driven.numpy(), atol=1e-5)
+    assert_exported_drives_alike(both, tmp_path, image, vector, driven)
     with pytest.raises(ValueError, match="not driving settings"):
         student.driving_with(frames=3)
 
@@ -258,11 +264,7 @@ def test_keypoint_features_are_expected_positions_that_mirror_and_export(tmp_pat
     vector = torch.randn(5, 6, 2)
     with torch.no_grad():
         driven = student(image, vector)
-    student.save(tmp_path / STUDENT_NAME)
-    out = export_policy(tmp_path, tmp_path / "export")
-    for backend in ("onnx", "torch"):
-        np.testing.assert_allclose(NavPolicy(out, backend).act_stacked(image.numpy(), vector.numpy()),
-                                   driven.numpy(), atol=1e-5)
+    assert_exported_drives_alike(student, tmp_path, image, vector, driven)
     with pytest.raises(RangeError, match="keypoints"):
         StudentConfig(keypoints=-1)
 

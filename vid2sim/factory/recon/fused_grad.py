@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from numba import njit
 
 
 def as_numpy(t: torch.Tensor) -> np.ndarray:
@@ -34,3 +35,14 @@ def loss_with_grad(node: type[PrecomputedGrad], x: torch.Tensor, value: float, g
     """The scalar `value` (x's dtype) as a loss of x whose gradient dL/dx is grad (x's shape),
     through the autograd node `node`."""
     return node.apply(x, value, torch.from_numpy(grad))
+
+
+@njit(cache=True)
+def ordered_sums(totals, counts):
+    """(sum of totals [R], sum of counts [R]) added in row order: the per-row partial sums of a pass
+    that ran its rows in parallel, so that the result does not depend on the thread count."""
+    total, count = 0.0, 0
+    for i in range(totals.shape[0]):
+        total += totals[i]
+        count += counts[i]
+    return total, count

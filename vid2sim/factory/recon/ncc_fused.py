@@ -24,7 +24,7 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
+from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad, ordered_sums
 
 
 @njit(cache=True, parallel=True)
@@ -43,11 +43,7 @@ def _ncc_patches(r, d, m, patch, stride, min_valid, eps, grad):
             row = phase + k * phases
             row_total[row], row_kept[row] = _ncc_row(r, d, m, row * stride, patch, stride, min_valid, eps,
                                                      grad)
-    total, kept = 0.0, 0
-    for row in range(n_rows):
-        total += row_total[row]
-        kept += row_kept[row]
-    return total, kept
+    return ordered_sums(row_total, row_kept)
 
 
 @njit(cache=True)

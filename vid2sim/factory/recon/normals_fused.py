@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from numba import njit, prange
 
-from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad
+from vid2sim.factory.recon.fused_grad import PrecomputedGrad, as_numpy, loss_with_grad, ordered_sums
 
 EPS = 1e-8  # losses.normal_loss's cosine eps
 
@@ -37,11 +37,7 @@ def _normal_terms(r, p, valid, eps, grad):
     row_count = np.zeros(H, np.int64)
     for i in prange(H):
         row_total[i], row_count[i] = _normal_row(r, p, valid, eps, grad, i)
-    total, count = 0.0, 0
-    for i in range(H):
-        total += row_total[i]
-        count += row_count[i]
-    return total, count
+    return ordered_sums(row_total, row_count)
 
 
 @njit(cache=True)
@@ -80,11 +76,7 @@ def _geo_terms(n, depth, valid, grad):
         for k in prange((H - 1 - phase + 1) // 2):
             i = phase + 2 * k
             row_num[i], row_den[i] = _geo_row(n, depth, valid, grad, i)
-    num, den = 0.0, 0.0
-    for i in range(H - 1):
-        num += row_num[i]
-        den += row_den[i]
-    return num, den
+    return ordered_sums(row_num, row_den)
 
 
 @njit(cache=True)
