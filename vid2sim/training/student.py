@@ -68,9 +68,9 @@ from torch import nn
 from vid2sim.formats.robot import ROBOT
 from vid2sim.ranges import checked
 from vid2sim.training.policy import VECTOR_SCALE
-from vid2sim.training.wrappers import WAYPOINT_SPACING
 
 STACK = 6  # frames in the env observation
+WAYPOINT_SPACING = 0.5  # m along the teacher's route between its waypoint labels (`TeacherLabels`)
 DRIVING_SETTINGS = ("steer_gain", "mirror_average", "drive_waypoints", "lookahead")  # no weight depends on them
 
 
@@ -210,7 +210,8 @@ class StudentPolicy(nn.Module):
 
     def outputs(self, frames: torch.Tensor, vector: torch.Tensor, steer_gain: float = 1.0) -> "StudentOutputs":
         """The actions (regressed steering tanh(steer_gain x pre-activation); the learner's losses use 1),
-        the steering logits (with steer_bins) and the clearance prediction (with the clearance head)."""
+        the steering logits (with steer_bins), and the clearance, depth and route predictions (with
+        their heads)."""
         b, k = frames.shape[:2]
         x = frames.float().reshape(b * k, *frames.shape[2:]) / 255.0
         maps = self.encoder[:-1](x)  # [B * frames, c4, h', w'] (the encoder without its Flatten)

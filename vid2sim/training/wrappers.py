@@ -49,10 +49,10 @@ import numpy as np
 from vid2sim.envs.expert import ExpertConfig, PurePursuitExpert
 from vid2sim.envs.rendering import depth_to_u8
 from vid2sim.envs.sensing import RAY_HEIGHT, camera_hfov_deg, mesh_ranges, ray_angles, walkable_ranges, world_grid
+from vid2sim.training.student import WAYPOINT_SPACING
 
 STUCK = "stuck"
 CLEARANCE_RANGE = 5.0  # m: the teacher's clearance readings saturate here
-WAYPOINT_SPACING = 0.5  # m along the teacher's route between its waypoint labels
 
 
 class StuckTermination(gym.Wrapper):
