@@ -43,7 +43,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -68,12 +68,17 @@ class DistillError(ValueError):
 
 
 DEPTH_GRID = (9, 16)  # blocks of the 72 x 128 frame the teacher's depth target is stored in (8 x 8 px each)
+# the auxiliary targets' Batch fields: what their per-state shape holds, and the error when rounds differ
+AUX_TARGETS = {"clearance": ("clearance rays", "clearance_mismatch"), "depth": ("depth targets", "depth_mismatch"),
+               "waypoints": ("route points", "waypoint_mismatch")}
 
 
 @dataclass
 class Batch:
     """Labelled states of one round: preprocessed frames, goal vectors, teacher actions and (with
-    the auxiliary targets) the teacher's clearance readings and the frame's blocked depth."""
+    the auxiliary targets) the teacher's clearance readings, the frame's blocked depth and the
+    teacher's route ahead. Methods go over every field (`by_name`), so a new field needs only its
+    declaration, its default in `__post_init__` and, if it has one, its mirror."""
 
     frames: np.ndarray  # uint8 [N, frames, C, h, w]
     vectors: np.ndarray  # float32 [N, 6, 2]
@@ -96,27 +101,25 @@ class Batch:
         if self.waypoints is None:
             self.waypoints = np.zeros((len(self.actions), 0, 2), np.float32)
 
+    def by_name(self) -> dict[str, np.ndarray]:
+        """Every field by name, in field order."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
     def save(self, path: Path) -> None:
-        np.savez(path, frames=self.frames, vectors=self.vectors, actions=self.actions, clearance=self.clearance,
-                 depth=self.depth, hard=self.hard, waypoints=self.waypoints)
+        np.savez(path, **self.by_name())
 
     @classmethod
     def load(cls, path: Path) -> "Batch":
         with np.load(path) as z:  # shards written before the auxiliary targets and the hard flags have none
-            return cls(z["frames"], z["vectors"], z["actions"], *(z[k] if k in z else None
-                                                                  for k in ("clearance", "depth", "hard",
-                                                                            "waypoints")))
+            return cls(**{f.name: z[f.name] if f.name in z else None for f in fields(cls)})
 
     def take(self, idx: np.ndarray) -> "Batch":
         """Rows idx of every field."""
-        return Batch(self.frames[idx], self.vectors[idx], self.actions[idx], self.clearance[idx], self.depth[idx],
-                     self.hard[idx], self.waypoints[idx])
+        return Batch(**{k: a[idx] for k, a in self.by_name().items()})
 
     def mirrored(self, rows: np.ndarray) -> "Batch":
         """A copy in which the states `rows` (bool [N]) are seen in a mirror (`mirror_rows`)."""
-        out = Batch(self.frames.copy(), self.vectors.copy(), self.actions.copy(), self.clearance.copy(),
-                    self.depth.copy(), self.hard.copy(), self.waypoints.copy())
-        return out.mirror_rows(rows)
+        return Batch(**{k: a.copy() for k, a in self.by_name().items()}).mirror_rows(rows)
 
     def mirror_rows(self, rows: np.ndarray) -> "Batch":
         """The states `rows` (bool [N]) seen in a mirror, in place -> self: frames, clearance rays and
@@ -179,27 +182,17 @@ class Dataset:
         starts = np.cumsum([0] + [len(p.actions) for p in self.parts])  # [P + 1]
         rows = np.asarray(idx, np.int64) + (len(self) - self.rows())  # [B] rows of the concatenation
         part = np.searchsorted(starts, rows, side="right") - 1  # [B]
-        first = self.parts[0]
-        out = Batch(*(np.empty((len(rows), *a.shape[1:]), a.dtype)
-                      for a in (first.frames, first.vectors, first.actions, first.clearance, first.depth, first.hard,
-                                first.waypoints)))
+        out = Batch(**{k: np.empty((len(rows), *a.shape[1:]), a.dtype) for k, a in self.parts[0].by_name().items()})
         for j in np.unique(part):
             hit = part == j
             local = rows[hit] - starts[j]
             src = self.parts[j]
-            if src.clearance.shape[1] != out.clearance.shape[1]:
-                raise DistillError(f"clearance_mismatch: round data with {src.clearance.shape[1]} and "
-                                   f"{out.clearance.shape[1]} clearance rays cannot be mixed")
-            if src.waypoints.shape[1] != out.waypoints.shape[1]:
-                raise DistillError(f"waypoint_mismatch: round data with {src.waypoints.shape[1]} and "
-                                   f"{out.waypoints.shape[1]} route points cannot be mixed")
-            if src.depth.shape[1:] != out.depth.shape[1:]:
-                raise DistillError(f"depth_mismatch: round data with depth targets {src.depth.shape[1:]} and "
-                                   f"{out.depth.shape[1:]} cannot be mixed")
-            out.frames[hit], out.vectors[hit] = src.frames[local], src.vectors[local]
-            out.actions[hit], out.clearance[hit] = src.actions[local], src.clearance[local]
-            out.depth[hit], out.hard[hit] = src.depth[local], src.hard[local]
-            out.waypoints[hit] = src.waypoints[local]
+            for name, (what, error) in AUX_TARGETS.items():
+                have, want = getattr(src, name).shape[1:], getattr(out, name).shape[1:]
+                if have != want:
+                    raise DistillError(f"{error}: round data with {what} {have} and {want} cannot be mixed")
+            for k, a in src.by_name().items():
+                getattr(out, k)[hit] = a[local]
         return out
 
     def hard_rows(self) -> np.ndarray:
