@@ -82,7 +82,8 @@ def distill_config(args) -> DistillConfig:
                    teacher_lookahead=args.teacher_lookahead, weight_decay=args.weight_decay,
                    clearance_weight=args.clearance_weight, steer_weight=args.steer_weight,
                    hard_fraction=args.hard_fraction, hard_steps=args.hard_steps,
-                   depth_weight=args.depth_weight, waypoint_weight=args.waypoint_weight, ema_decay=args.ema_decay,
+                   scene_priority=args.scene_priority, depth_weight=args.depth_weight,
+                   waypoint_weight=args.waypoint_weight, ema_decay=args.ema_decay,
                    augment=args.augment,
                    student=student)
 
@@ -391,6 +392,8 @@ def main() -> None:
                     help="a label counts 1 + this x |its steering| in the action loss")
     ap.add_argument("--hard-fraction", type=float, default=DistillConfig.hard_fraction,
                     help="share of each learner batch drawn from the states before a contact (0: uniform)")
+    ap.add_argument("--scene-priority", type=float, default=DistillConfig.scene_priority,
+                    help="share of each env's episodes drawn by the student's failure rate per scene (0: uniform)")
     ap.add_argument("--hard-steps", type=int, default=DistillConfig.hard_steps,
                     help="states before a contact's onset flagged hard")
     ap.add_argument("--clearance-weight", type=float, default=DistillConfig.clearance_weight,

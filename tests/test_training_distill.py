@@ -764,3 +764,40 @@ def test_a_hard_fraction_of_each_batch_comes_from_the_flagged_states():
     assert np.isin(np.concatenate(seen), [5, 77, 150]).mean() < 0.1
     old = Batch(frames, np.zeros((n, 6, 2), np.float32), np.zeros((n, 2), np.float32))
     assert not old.hard.any()  # shards written before the flags read as none flagged
+
+
+def test_scene_weights_steer_the_resets_draw_and_bad_weights_are_named(street_registry):
+    from vid2sim.envs.nav_env import NavEnv
+    env = NavEnv(street_registry, _two_scenes(street_registry), fidelity="exact")
+    try:
+        a, b = env.scene_ids
+        env.set_scene_weights([0.0, 1.0])
+        assert {env.reset(seed=s)[1]["scene_id"] for s in range(6)} == {b}
+        assert env.reset(seed=0, options={"scene_id": a})[1]["scene_id"] == a  # options still win
+        env.set_scene_weights(None)
+        assert {env.reset(seed=s)[1]["scene_id"] for s in range(12)} == {a, b}
+        for bad in ([1.0], [-1.0, 2.0], [0.0, 0.0], [np.nan, 1.0]):
+            with pytest.raises(ValueError, match="scene weights"):
+                env.set_scene_weights(bad)
+    finally:
+        env.close()
+
+
+def _two_scenes(registry) -> list[str]:
+    from vid2sim.registry import Registry
+    return sorted(r.scene_id for r in Registry(registry).list())[:2]
+
+
+def test_prioritised_scenes_are_sent_counted_and_resumed(street_registry, tmp_path):
+    config = tiny_config(street_registry, tmp_path / "run", 180)
+    config.n_envs, config.scene_ids = 1, _two_scenes(street_registry)  # one env holds both scenes
+    config.distill.scene_priority = 0.5
+    result = train_distill(config)
+    ckpt = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+    state = ckpt["scene_priority"]
+    assert state["scene_ids"] == config.scene_ids and sum(state["episodes"]) > 0  # the student's episodes counted
+    assert all(0.5 <= row["scene_weight_max"] <= 0.75 for row in result.history)  # half uniform over 2 scenes
+    config.total_steps = 240
+    train_distill(config, resume=True)
+    resumed = torch.load(tmp_path / "run" / "checkpoints" / "last.pt", map_location="cpu", weights_only=False)
+    assert sum(resumed["scene_priority"]["episodes"]) >= 0.9 * sum(state["episodes"])  # carried over, faded once

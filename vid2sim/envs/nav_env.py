@@ -87,6 +87,7 @@ class NavEnv(gym.Env):
         self.registry = registry if isinstance(registry, Registry) else Registry(registry)
         self.scene_ids = resolve_scene_ids(self.registry, scenes)
         self.checkout_root = Path(checkout_root) if checkout_root else None
+        self.scene_weights: Optional[np.ndarray] = None  # [n_scenes] reset's draw of the scene (None: uniform)
         self._worlds: dict[str, SceneWorld] = {}
         self.world = self._world(self.scene_ids[0])  # refuses an unusable first scene now
         c = self.config
@@ -115,6 +116,23 @@ class NavEnv(gym.Env):
                                                  self.checkout_root)
         return self._worlds[scene_id]
 
+    def set_scene_weights(self, weights: Optional[Sequence[float]]) -> None:
+        """How often later resets draw each of `scene_ids` (relative weights, one per scene; None: all
+        alike, the default). A reset's `options["scene_id"]` still wins."""
+        if weights is None:
+            self.scene_weights = None
+            return
+        w = np.asarray(weights, np.float64)
+        if w.shape != (len(self.scene_ids),) or not np.all(np.isfinite(w)) or np.any(w < 0) or w.sum() <= 0:
+            raise ValueError(f"scene weights {list(np.atleast_1d(w))}: need {len(self.scene_ids)} finite "
+                             f"non-negative weights, not all zero, one per scene of {self.scene_ids}")
+        self.scene_weights = w / w.sum()
+
+    def _draw_scene(self, rng: np.random.Generator) -> str:
+        if self.scene_weights is None:
+            return self.scene_ids[int(rng.integers(len(self.scene_ids)))]
+        return self.scene_ids[int(rng.choice(len(self.scene_ids), p=self.scene_weights))]
+
     # ------------------------------------------------------------------ gym API
     def reset(self, *, seed: Optional[int] = None, options: Optional[dict] = None):
         super().reset(seed=seed)
@@ -133,7 +151,7 @@ class NavEnv(gym.Env):
 
     def _start_episode(self, options: dict):
         rng = self.np_random
-        scene_id = options.get("scene_id") or self.scene_ids[int(rng.integers(len(self.scene_ids)))]
+        scene_id = options.get("scene_id") or self._draw_scene(rng)
         self.world = self._world(scene_id)
         c = self.config
         ep = self._sample_free_start(rng, scene_id)

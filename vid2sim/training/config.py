@@ -84,6 +84,9 @@ class DistillConfig:
     hard_steps: int = 10
     # share of each learner batch drawn from the flagged states (0: uniform batches, the recipe at the bar)
     hard_fraction: float = 0.0
+    # share of each env's episodes whose scene is drawn in proportion to the student's recent failure rate
+    # there, the rest uniform over the env's scenes (training/scene_priority.py; 0: uniform, the default)
+    scene_priority: float = 0.0
     max_samples: int = 150_000  # dataset cap in labelled states
     eviction: str = "oldest"  # over the cap: "oldest" drops whole rounds, "even" thins every round alike
     drop_stuck: bool = True  # drop the teacher's blocked-pose recovery labels (full lock, history-dependent)
@@ -116,6 +119,8 @@ class DistillConfig:
             raise ValueError(f"DistillConfig.eviction: {self.eviction!r} is not one of {EVICTIONS}")
         if not 0.0 <= self.mirror <= 1.0:
             raise ValueError(f"DistillConfig.mirror: {self.mirror} is not a probability in [0, 1]")
+        if not 0.0 <= self.scene_priority <= 1.0:
+            raise ValueError(f"DistillConfig.scene_priority: {self.scene_priority} is not a share in [0, 1]")
 
 
 @checked

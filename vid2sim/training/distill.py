@@ -15,7 +15,9 @@ does, in order:
      teacher with probability beta_k = max(min_beta, beta0 * beta_decay^k), else by the student
      (DAgger: beta_0 = 1 is behaviour cloning); every visited state goes into the dataset with
      the teacher's label, except the teacher's blocked-pose recovery labels (`drop_stuck`); the states
-     of the `hard_steps` steps before each contact's onset are flagged hard;
+     of the `hard_steps` steps before each contact's onset are flagged hard; with `scene_priority` > 0 a
+     share of each env's episodes go to its scenes in proportion to the student's recent failure rate
+     there (`training/scene_priority.py`);
   4. fit the student on the aggregated dataset: `updates_per_round` AdamW steps of MSE to the
      labels (optionally weighted towards hard turns, `steer_weight`, or with a share of each batch
      drawn from the states that led into a contact, `hard_fraction`), on batches with random-shift
@@ -58,6 +60,7 @@ from vid2sim.threads import thread_pools
 from vid2sim.training.config import EVICTIONS, DistillConfig, TrainConfig
 from vid2sim.training.rollouts import EnvSpec
 from vid2sim.training.sac import TrainResult, make_vec_env, resolve_scenes, write_run_folder
+from vid2sim.training.scene_priority import ScenePriority
 from vid2sim.training.student import StudentPolicy, random_shift, two_hot
 
 STUDENT_NAME = "student.pt"
@@ -269,6 +272,7 @@ class RoundStats:
     dropped_stuck: int = 0
     hard: int = 0  # labelled states flagged hard (before a contact began)
     episodes: dict[str, list[bool]] = field(default_factory=lambda: {"teacher": [], "student": []})
+    scenes: dict[str, list[str]] = field(default_factory=lambda: {"teacher": [], "student": []})  # their scene ids
     wall_s: float = 0.0
 
     def success_rate(self, driver: str) -> Optional[float]:
@@ -339,6 +343,7 @@ class Collector:
                     self.episode_steps[i] = 0
                     driver = "teacher" if self.teacher_drives[i] else "student"
                     stats.episodes[driver].append(info.get("end") == "success")
+                    stats.scenes[driver].append(str(info.get("scene_id", "")))
                     self.teacher_drives[i] = self.rng.random() < beta_k
                     self.labels[i] = dict(self.env.reset_infos[i])
                 else:
@@ -510,10 +515,11 @@ def make_averaged(student: StudentPolicy, decay: float, state: Optional[dict] = 
 
 def save_checkpoint(run: Path, student: StudentPolicy, optimizer: torch.optim.Optimizer, round_index: int,
                     num_timesteps: int, history: list[dict], rng: np.random.Generator,
-                    averaged: Optional[AveragedModel] = None) -> None:
+                    averaged: Optional[AveragedModel] = None, priority: Optional[ScenePriority] = None) -> None:
     ckpt = {"student": student.checkpoint(), "optimizer": optimizer.state_dict(), "round": round_index,
             "num_timesteps": num_timesteps, "history": history, "rng": rng.bit_generator.state,
-            "averaged": averaged.state_dict() if averaged is not None else None}
+            "averaged": averaged.state_dict() if averaged is not None else None,
+            "scene_priority": priority.state_dict() if priority is not None else None}
     tmp = run / "checkpoints" / "last.pt.tmp"
     torch.save(ckpt, tmp)
     tmp.replace(run / "checkpoints" / "last.pt")
@@ -549,6 +555,8 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
         averaged = make_averaged(student, d.ema_decay)
         rng = np.random.default_rng(config.seed)
         dataset, history, start, done = Dataset(d.max_samples, d.eviction), [], 0, 0
+        groups = scene_groups(config.scene_ids, config.n_envs)
+        priority = ScenePriority(config.scene_ids, d.scene_priority) if d.scene_priority > 0 else None
         if resume:
             ckpt = load_checkpoint(run)
             student.load_state_dict(ckpt["student"]["state_dict"])
@@ -556,15 +564,22 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
             averaged = make_averaged(student, d.ema_decay, ckpt.get("averaged"))
             rng.bit_generator.state = ckpt["rng"]
             start, done, history = ckpt["round"] + 1, ckpt["num_timesteps"], ckpt["history"]
+            if priority is not None and ckpt.get("scene_priority"):
+                priority.load_state_dict(ckpt["scene_priority"])
             for k in range(start):
                 dataset.add(Batch.load(run / "data" / f"round_{k:03d}.npz"))
         driver = averaged.module if averaged is not None else student  # who drives the student's episodes
+        if priority is not None:
+            priority.apply(env, groups)  # before the collector's first resets
         collector = Collector(env, driver, config.seed + 7919 * start)
         rounds = max(1, math.ceil(config.total_steps / d.steps_per_round))
         t_start = time.perf_counter()
         for k in range(start, rounds):
             beta_k = beta(config, k)
+            largest_weight = priority.apply(env, groups) if priority is not None else None
             batch, stats = collector.collect(d.steps_per_round, beta_k, d.drop_stuck, d.hard_steps)
+            if priority is not None:
+                priority.update(stats.scenes["student"], stats.episodes["student"])
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
@@ -574,12 +589,14 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
                    "env_steps_per_s": stats.steps / max(stats.wall_s, 1e-9),
                    "teacher_sr": stats.success_rate("teacher"), "student_sr": stats.success_rate("student"),
                    "student_episodes": len(stats.episodes["student"]), **fitted}
+            if priority is not None:
+                row["scene_weight_max"] = largest_weight  # the largest draw weight an env had this round
             history.append(row)
             for key, value in row.items():
                 if key != "round" and value is not None:
                     writer.add_scalar(f"distill/{key}", value, done)
             writer.flush()
-            save_checkpoint(run, student, optimizer, k, done, history, rng, averaged)
+            save_checkpoint(run, student, optimizer, k, done, history, rng, averaged, priority)
             if log:
                 log(row)
         driver.save(run / STUDENT_NAME)
