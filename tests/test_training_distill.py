@@ -766,9 +766,9 @@ def test_a_hard_fraction_of_each_batch_comes_from_the_flagged_states():
     assert not old.hard.any()  # shards written before the flags read as none flagged
 
 
-def test_scene_weights_steer_the_resets_draw_and_bad_weights_are_named(street_registry):
+def test_scene_weights_steer_the_resets_draw_and_bad_weights_are_named(street_registry, tmp_path):
     from vid2sim.envs.nav_env import NavEnv
-    env = NavEnv(street_registry, _two_scenes(street_registry), fidelity="exact")
+    env = NavEnv(street_registry, _two_scenes(street_registry), fidelity="exact", checkout_root=tmp_path)
     try:
         a, b = env.scene_ids
         env.set_scene_weights([0.0, 1.0])
