@@ -195,6 +195,11 @@ def obstacle_kwargs(args) -> dict:
     return {"obstacles": {"min_count": lo, "max_count": hi}}
 
 
+def variant_kwargs(args) -> dict:
+    """The students' observation (--variant): {} for the camera's RGB."""
+    return {"variant": args.variant} if args.variant != "rgb" else {}
+
+
 def train_one(args, reg: str, seed: int, scene_ids: Optional[list[str]] = None) -> tuple[Path, dict]:
     """Distil the student of `seed` (a finished run of the same folder is reused) -> run folder, budget.
     scene_ids: the training streets (None: the registry split's training side)."""
@@ -202,7 +207,8 @@ def train_one(args, reg: str, seed: int, scene_ids: Optional[list[str]] = None) 
     config = TrainConfig(run_dir=str(run_dir), total_steps=args.steps, registry=reg, n_envs=args.envs, n_actors=0,
                          seed=seed, method="distill", stuck_steps=10, scene_ids=scene_ids,
                          env_kwargs={"training": True, "checkout_root": str(args.root / "checkouts"),
-                                     "fidelity": args.fidelity, **camera_kwargs(args), **obstacle_kwargs(args)},
+                                     "fidelity": args.fidelity, **camera_kwargs(args), **obstacle_kwargs(args),
+                                     **variant_kwargs(args)},
                          distill=distill_config(args))
     return run_dir, train_or_reuse(config)
 
@@ -221,7 +227,7 @@ def eval_config(args, reg: str, run_dir: Path, obstacles: str, scenes: Optional[
     with --extra-streets those of the base streets' split, set by `run_heldout` as args.heldout_ids)."""
     scenes = scenes or getattr(args, "heldout_ids", None) or []
     return EvalConfig(registry=reg, policy=str(run_dir), scene_ids=scenes, trials=args.trials,
-                      obstacles=obstacles, max_steps=args.eval_max_steps or None,
+                      obstacles=obstacles, max_steps=args.eval_max_steps or None, variant=args.variant,
                       checkout_root=str(args.root / "checkouts"))
 
 
@@ -400,6 +406,9 @@ def main() -> None:
                     help="weight of the auxiliary clearance loss")
     ap.add_argument("--augment", action=argparse.BooleanOptionalAction, default=DistillConfig.augment,
                     help="the training envs' per-episode image augmentation (exposure, tint, fog, rain, snow)")
+    ap.add_argument("--variant", choices=("rgb", "depth", "mesh-rgb"), default="rgb",
+                    help="what the students see, in training and evaluation: the splat RGB, the depth oracle "
+                         "or the mesh render")
     ap.add_argument("--camera-vfov", type=float, default=0.0,
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--train-obstacles", type=int, nargs=2, default=None, metavar=("MIN", "MAX"),
