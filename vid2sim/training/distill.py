@@ -569,17 +569,14 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
             for k in range(start):
                 dataset.add(Batch.load(run / "data" / f"round_{k:03d}.npz"))
         driver = averaged.module if averaged is not None else student  # who drives the student's episodes
-        if priority is not None:
-            priority.apply(env, groups)  # before the collector's first resets
+        # each env's scene weights, sent before the collector's first resets and after every round
+        largest_weight = priority.apply(env, groups) if priority is not None else None
         collector = Collector(env, driver, config.seed + 7919 * start)
         rounds = max(1, math.ceil(config.total_steps / d.steps_per_round))
         t_start = time.perf_counter()
         for k in range(start, rounds):
             beta_k = beta(config, k)
-            largest_weight = priority.apply(env, groups) if priority is not None else None
             batch, stats = collector.collect(d.steps_per_round, beta_k, d.drop_stuck, d.hard_steps)
-            if priority is not None:
-                priority.update(stats.scenes["student"], stats.episodes["student"])
             batch.save(run / "data" / f"round_{k:03d}.npz")
             dataset.add(batch)
             done += stats.steps
@@ -591,6 +588,8 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
                    "student_episodes": len(stats.episodes["student"]), **fitted}
             if priority is not None:
                 row["scene_weight_max"] = largest_weight  # the largest draw weight an env had this round
+                priority.update(stats.scenes["student"], stats.episodes["student"])
+                largest_weight = priority.apply(env, groups)
             history.append(row)
             for key, value in row.items():
                 if key != "round" and value is not None:
