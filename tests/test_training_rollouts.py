@@ -79,6 +79,9 @@ def test_killed_actor_is_restarted_and_stepping_goes_on(ray_runtime):
     specs = goal_specs(4, horizons=(1000,))
     env = RayVecEnv(specs, RayVecEnvConfig(n_actors=2, num_cpus_per_actor=0.5))
     obs = env.reset()
+    env.set_attr("arena", 7.0, indices=[1])
+    env.env_method("set_dt", 0.1, indices=[0, 1, 2])
+    env.env_method("set_dt", 0.3, indices=[0])  # the latest call per env is replayed
     actions = np.zeros((4, 2), np.float32)
     env.step(actions)
     pids = env.actor_pids()
@@ -93,6 +96,8 @@ def test_killed_actor_is_restarted_and_stepping_goes_on(ray_runtime):
     assert env.restarts == 1
     new_pids = env.actor_pids()
     assert new_pids[0] != pids[0] and new_pids[1] == pids[1]
+    assert env.get_attr("arena") == [4.0, 7.0, 4.0, 4.0]  # settings survive the replacement
+    assert env.get_attr("dt") == [0.3, 0.1, 0.1, 0.2]
     for _ in range(5):
         obs, rewards, dones, infos = env.step(actions)
     assert not any(info.get("actor_restarted") for info in infos)

@@ -75,5 +75,9 @@ class GoalSeekEnv(gym.Env):
     def render(self):
         return np.transpose(self.frames[-1], (1, 2, 0))
 
+    def set_dt(self, dt: float) -> None:
+        """A setting made through a method (the vec env replays `set_*` calls on a replaced actor)."""
+        self.dt = float(dt)
+
 
 gym.register("tests/GoalSeek-v0", entry_point=GoalSeekEnv, max_episode_steps=60)

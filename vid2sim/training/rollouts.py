@@ -12,6 +12,9 @@ Fault tolerance: when an actor dies (node loss, OOM kill), it is re-created with
 specs, its environments are reset, and the interrupted step is reported for those envs as a
 truncation (`done=True`, `TimeLimit.truncated=True`, reward 0, `terminal_observation` = their last
 observation, `info["actor_restarted"]=True`), so off-policy learners bootstrap it like a time-out.
+Settings made through the vec env survive the replacement: every `set_attr` and every `env_method`
+call of a method named `set_*` (e.g. `NavEnv.set_scene_weights`) is remembered per env, the latest
+per name, and replayed on the new actor's envs before they reset.
 """
 
 from __future__ import annotations
@@ -190,6 +193,8 @@ class RayVecEnv(VecEnv):
         self._seeds = [s.seed for s in self.specs]
         self._last_obs: list[Any] = [None] * self.num_envs
         self._actions: Optional[np.ndarray] = None
+        # per env: the settings to replay on a replaced actor, {(kind, name): payload}, the latest per name
+        self._settings: list[dict[tuple[str, str], Any]] = [{} for _ in self.specs]
 
     def _new_actor(self, block: Sequence[int]) -> Any:
         cls = self._actor_cls
@@ -246,6 +251,7 @@ class RayVecEnv(VecEnv):
             raise RuntimeError(f"Ray env actor {k} died and the restart budget ({self.config.max_restarts}) is spent")
         self.restarts += 1
         self.actors[k] = self._new_actor(self.blocks[k])
+        self._replay_settings(k)
         seeds = [None if self.specs[i].seed is None else self.specs[i].seed + 100_003 * self.restarts
                  for i in self.blocks[k]]
         return ray.get(self.actors[k].reset.remote(seeds, [{} for _ in self.blocks[k]]))
@@ -258,6 +264,22 @@ class RayVecEnv(VecEnv):
             info = {"terminal_observation": prev, "TimeLimit.truncated": True, "actor_restarted": True}
             out.append((obs, 0.0, True, info, reset_info))
         return out
+
+    def _remember(self, indices: VecEnvIndices, key: tuple[str, str], payload: Any) -> None:
+        for i in self._get_indices(indices):
+            self._settings[i][key] = payload
+
+    def _replay_settings(self, k: int) -> None:
+        """Apply the remembered settings of block k's envs to its (new) actor."""
+        calls = []
+        for local, i in enumerate(self.blocks[k]):
+            for (kind, name), payload in self._settings[i].items():
+                if kind == "attr":
+                    calls.append(self.actors[k].set_attr.remote([local], name, payload))
+                else:
+                    args, kwargs = payload
+                    calls.append(self.actors[k].call.remote([local], name, args, kwargs))
+        ray.get(calls)
 
     def actor_pids(self) -> list[int]:
         return ray.get([a.pid.remote() for a in self.actors])
@@ -286,9 +308,12 @@ class RayVecEnv(VecEnv):
         return self._gather(indices, lambda a, loc: a.get_attr.remote(loc, attr_name))
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        self._remember(indices, ("attr", attr_name), value)
         ray.get([self.actors[k].set_attr.remote(loc, attr_name, value) for k, _, loc in self._by_actor(indices)])
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
+        if method_name.startswith("set_"):
+            self._remember(indices, ("call", method_name), (method_args, method_kwargs))
         return self._gather(indices, lambda a, loc: a.call.remote(loc, method_name, method_args, method_kwargs))
 
     def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
