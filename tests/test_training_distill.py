@@ -486,11 +486,15 @@ def test_an_auxiliary_target_is_collected_learnt_and_left_out_of_the_export(
         street_registry, tmp_path, target, student_field, weight, check_shard, falls_to):
     config = tiny_config(street_registry, tmp_path / "run", 60)
     config.distill.student = StudentConfig(**{**TINY.to_dict(), **student_field})
+    if student_field.get("drive_waypoints"):  # its pure pursuit steers the env's robot, not the default one
+        config.env_kwargs["robot"] = {"wheelbase": 0.7, "max_steer_deg": 35.0}
     result = train_distill(config)
     shard = Batch.load(tmp_path / "run" / "data" / "round_000.npz")
     check_shard(shard)
     assert f"{target}_loss" in result.history[0]
     student = load_student(tmp_path / "run" / STUDENT_NAME)
+    if student_field.get("drive_waypoints"):
+        assert (student.config.wheelbase, student.config.max_steer_deg) == (0.7, 35.0)
     optimizer = make_optimizer(student, DistillConfig(learning_rate=3e-3))
     rng = np.random.default_rng(0)
     before = fit(student, optimizer, shard, fit_conf(1, 32, **{weight: 1.0}), rng)[f"{target}_loss"]
@@ -533,6 +537,9 @@ def test_pursuit_on_a_route_is_the_teachers_steering():
     assert steering[2].item() == 1.0  # a point to the left beyond the steering limit: full lock
     torch.testing.assert_close(pursuit_steering(route, 0.75),
                                pursuit_steering(0.5 * (route[:, :1] + route[:, 1:2]), 0.5))
+    x, y = route[1, 1].tolist()  # another robot: its wheelbase and steering limit
+    want = math.atan2(2 * 0.6 * math.sin(math.atan2(y, x)), math.hypot(x, y)) / math.radians(40.0)
+    assert pursuit_steering(route, 1.0, 0.6, 40.0)[1].item() == pytest.approx(want, abs=1e-5)
     with pytest.raises(ValueError, match="waypoints"):
         StudentConfig(drive_waypoints=True)
     with pytest.raises(ValueError, match="lookahead"):

@@ -45,7 +45,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, Optional, Sequence, Union
 
@@ -470,10 +470,16 @@ def _one_part(batch: Batch) -> Dataset:
 
 # ------------------------------------------------------------------ the loop
 def make_student(config: TrainConfig, env: VecEnv) -> StudentPolicy:
+    """A fresh student for the env's observation (with `drive_waypoints`, the run's student config takes
+    the env's robot for its pure pursuit)."""
     space = env.observation_space
     if not hasattr(space, "spaces") or "image" not in space.spaces:
         raise DistillError(f"observation_mismatch: the student needs the Dict image + vector observation, "
                            f"env {config.env_id} gives {space}")
+    if config.distill.student.drive_waypoints:  # its pure pursuit steers the env's robot, as the teacher's does
+        robot = env.get_attr("config", indices=[0])[0].robot
+        config.distill.student = replace(config.distill.student, wheelbase=robot.wheelbase,
+                                         max_steer_deg=robot.max_steer_deg)
     torch.manual_seed(config.seed)
     return StudentPolicy(config.distill.student, space["image"].shape, space["vector"].shape).eval()
 

@@ -71,7 +71,8 @@ from vid2sim.training.policy import VECTOR_SCALE
 
 STACK = 6  # frames in the env observation
 WAYPOINT_SPACING = 0.5  # m along the teacher's route between its waypoint labels (`TeacherLabels`)
-DRIVING_SETTINGS = ("steer_gain", "mirror_average", "drive_waypoints", "lookahead")  # no weight depends on them
+DRIVING_SETTINGS = ("steer_gain", "mirror_average", "drive_waypoints", "lookahead", "wheelbase",
+                    "max_steer_deg")  # no weight depends on them
 
 
 @checked
@@ -94,6 +95,10 @@ class StudentConfig:
     waypoints: int = 0  # second head: the teacher's route ahead as K points WAYPOINT_SPACING m apart (0: none)
     drive_waypoints: bool = False  # when driving: steer by pure pursuit on the predicted route (needs waypoints)
     lookahead: float = 1.0  # m along the predicted route the pure pursuit aims (drive_waypoints)
+    # the robot the pure pursuit steers (drive_waypoints): the training env's `RobotConfig`, which the
+    # learner copies here, so the run folder and the export record it
+    wheelbase: float = ROBOT.wheelbase_m  # m
+    max_steer_deg: float = ROBOT.max_steer_deg  # deg
     steer_gain: float = 1.0  # when driving: steering tanh(gain x pre-activation); the learner's loss sees gain 1
     # when driving: the mean of its action and the mirrored action for the mirrored view (frames flipped left
     # to right, the goal's heading negated), so left and right are treated exactly alike; the loss sees one pass
@@ -205,7 +210,8 @@ class StudentPolicy(nn.Module):
         pure pursuit's steering on the predicted route."""
         if not self.config.drive_waypoints:
             return out.actions
-        steering = pursuit_steering(out.waypoints, self.config.lookahead)
+        c = self.config
+        steering = pursuit_steering(out.waypoints, c.lookahead, c.wheelbase, c.max_steer_deg)
         return torch.stack([out.actions[:, 0], steering], dim=1)
 
     def outputs(self, frames: torch.Tensor, vector: torch.Tensor, steer_gain: float = 1.0) -> "StudentOutputs":
@@ -293,18 +299,19 @@ class StudentOutputs:
     waypoints: torch.Tensor  # [B, K, 2] the predicted route ahead, robot frame, m ([B, 0, 2] without the head)
 
 
-def pursuit_steering(waypoints: torch.Tensor, lookahead: float) -> torch.Tensor:
+def pursuit_steering(waypoints: torch.Tensor, lookahead: float, wheelbase: float = ROBOT.wheelbase_m,
+                     max_steer_deg: float = ROBOT.max_steer_deg) -> torch.Tensor:
     """Route points [B, K, 2] (`WAYPOINT_SPACING` m apart, robot frame: x forward, y left) -> normalised
     steering [B] in [-1, 1]: pure pursuit of the point `lookahead` m along the route (interpolated)
-    for the robot's bicycle model, the teacher's controller (`envs/expert.py`):
-    atan(2 L sin(alpha) / l_d) = atan(2 L y / l_d^2), over the steering limit."""
+    for a bicycle model of `wheelbase` m, the teacher's controller (`envs/expert.py`):
+    atan(2 L sin(alpha) / l_d) = atan(2 L y / l_d^2), over the steering limit `max_steer_deg`."""
     pos = min(max(lookahead / WAYPOINT_SPACING - 1.0, 0.0), waypoints.shape[1] - 1.0)  # index into K
     lo = min(int(math.floor(pos)), waypoints.shape[1] - 1)
     hi, frac = min(lo + 1, waypoints.shape[1] - 1), pos - lo
     target = waypoints[:, lo] * (1.0 - frac) + waypoints[:, hi] * frac  # [B, 2]
     ld2 = target.square().sum(dim=1).clamp_min(1e-6)  # [B]
-    steer = torch.atan(2.0 * ROBOT.wheelbase_m * target[:, 1] / ld2)  # rad
-    return (steer / math.radians(ROBOT.max_steer_deg)).clamp(-1.0, 1.0)
+    steer = torch.atan(2.0 * wheelbase * target[:, 1] / ld2)  # rad
+    return (steer / math.radians(max_steer_deg)).clamp(-1.0, 1.0)
 
 
 def steer_from_logits(logits: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
