@@ -10,7 +10,7 @@ from vid2sim.training.scene_priority import MEMORY, ScenePriority
 
 def test_the_scene_the_student_fails_on_gets_the_larger_share():
     p = ScenePriority(["a", "b", "c"], share=0.5)
-    p.update(["a"] * 4 + ["b"] * 4, [False] * 4 + [True] * 4)
+    p.update([("a", False)] * 4 + [("b", True)] * 4)
     rates = p.failure_rates()
     assert rates[0] > rates[2] > rates[1] == pytest.approx(0.5 / 5)  # c: no episodes, the pooled rate 0.5
     w = p.weights(["a", "b"])
@@ -21,10 +21,10 @@ def test_the_scene_the_student_fails_on_gets_the_larger_share():
 def test_no_failures_or_no_share_draws_uniformly():
     p = ScenePriority(["a", "b"], share=0.8)
     np.testing.assert_allclose(p.weights(["a", "b"]), [0.5, 0.5])  # nothing seen yet
-    p.update(["a", "b"], [True, True])
+    p.update([("a", True), ("b", True)])
     np.testing.assert_allclose(p.weights(["a", "b"]), [0.5, 0.5])
     q = ScenePriority(["a", "b"], share=0.0)
-    q.update(["a"], [False])
+    q.update([("a", False)])
     np.testing.assert_allclose(q.weights(["a", "b"]), [0.5, 0.5])
     with pytest.raises(ValueError, match="share"):
         ScenePriority(["a"], share=1.5)
@@ -32,8 +32,8 @@ def test_no_failures_or_no_share_draws_uniformly():
 
 def test_older_rounds_fade_and_the_state_round_trips():
     p = ScenePriority(["a", "b"], share=1.0)
-    p.update(["a"], [False])
-    p.update(["b", "x"], [False, False])  # a scene the run does not train on is ignored
+    p.update([("a", False)])
+    p.update([("b", False), ("x", False)])  # a scene the run does not train on is ignored
     np.testing.assert_allclose(p.episodes, [MEMORY, 1.0])
     np.testing.assert_allclose(p.failures, [MEMORY, 1.0])
     q = ScenePriority(["a", "b"], share=1.0)

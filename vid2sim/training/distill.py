@@ -271,14 +271,14 @@ class RoundStats:
     labels: int = 0
     dropped_stuck: int = 0
     hard: int = 0  # labelled states flagged hard (before a contact began)
-    episodes: dict[str, list[bool]] = field(default_factory=lambda: {"teacher": [], "student": []})
-    scenes: dict[str, list[str]] = field(default_factory=lambda: {"teacher": [], "student": []})  # their scene ids
+    # per driver ("teacher", "student"): the round's finished episodes as (scene id, success)
+    episodes: dict[str, list[tuple[str, bool]]] = field(default_factory=lambda: {"teacher": [], "student": []})
     wall_s: float = 0.0
 
     def success_rate(self, driver: str) -> Optional[float]:
         """Success rate of the round's finished episodes driven by `driver` (None: none finished)."""
         ends = self.episodes[driver]
-        return float(np.mean(ends)) if ends else None
+        return float(np.mean([success for _, success in ends])) if ends else None
 
 
 class Collector:
@@ -342,8 +342,7 @@ class Collector:
                 if dones[i]:
                     self.episode_steps[i] = 0
                     driver = "teacher" if self.teacher_drives[i] else "student"
-                    stats.episodes[driver].append(info.get("end") == "success")
-                    stats.scenes[driver].append(str(info.get("scene_id", "")))
+                    stats.episodes[driver].append((str(info.get("scene_id", "")), info.get("end") == "success"))
                     self.teacher_drives[i] = self.rng.random() < beta_k
                     self.labels[i] = dict(self.env.reset_infos[i])
                 else:
@@ -594,7 +593,7 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
                    "student_episodes": len(stats.episodes["student"]), **fitted}
             if priority is not None:
                 row["scene_weight_max"] = largest_weight  # the largest draw weight an env had this round
-                priority.update(stats.scenes["student"], stats.episodes["student"])
+                priority.update(stats.episodes["student"])
                 largest_weight = priority.apply(env, groups)
             history.append(row)
             for key, value in row.items():

@@ -31,11 +31,11 @@ class ScenePriority:
         self.episodes = np.zeros(len(self.scene_ids))  # [S] decayed episode counts
         self.failures = np.zeros(len(self.scene_ids))  # [S] decayed failed episodes
 
-    def update(self, scenes: Sequence[str], successes: Sequence[bool]) -> None:
+    def update(self, episodes: Sequence[tuple[str, bool]]) -> None:
         """Add one round's finished episodes (scene id, success); older rounds fade by MEMORY."""
         self.episodes *= MEMORY
         self.failures *= MEMORY
-        for scene, success in zip(scenes, successes):
+        for scene, success in episodes:
             if scene in self.index:
                 self.episodes[self.index[scene]] += 1.0
                 self.failures[self.index[scene]] += 0.0 if success else 1.0
