@@ -10,13 +10,15 @@ stage reads), e.g. `vid2sim-work/clips/<clip>/metric`.
     .venv/bin/python benchmarks/recon_seeds.py POSED [--seeds 0 1 2] [--preset fast] [--threads 2]
         [--set FIELD=VALUE ...] [--label NAME]
 
-`--set` replaces top-level `ReconConfig` fields of the preset (a schedule variant, e.g.
-`--set coarse_iterations=1000 --set coarse_scale=0.5`); values are read as JSON, else as text.
+`--set` replaces `ReconConfig` fields of the preset, top-level or nested by a dotted name (a schedule
+variant, e.g. `--set coarse_iterations=1000 --set coarse_scale=0.5`, `--set densify.stop_iter=1200`);
+values are read as JSON, else as text.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import statistics
 import tempfile
@@ -37,7 +39,7 @@ def main() -> None:
     ap.add_argument("--preset", default="fast")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
-                    help="replace a top-level ReconConfig field of the preset (repeatable)")
+                    help="replace a ReconConfig field of the preset, nested ones by a dotted name (repeatable)")
     ap.add_argument("--label", default=None, help="case name (default: the PosedClip folder)")
     add_run_args(ap)
     a = ap.parse_args()
@@ -67,9 +69,20 @@ def parse_overrides(items: list[str]) -> dict:
 def config(a: argparse.Namespace, seed: int):
     """The preset with the `--set` fields and the seed."""
     try:
-        return preset(a.preset, **a.overrides, seed=seed)
-    except (TypeError, ValueError) as e:
+        conf = preset(a.preset, seed=seed)
+        for name, value in a.overrides.items():
+            conf = with_field(conf, name.split("."), value)
+        return conf
+    except (TypeError, ValueError, AttributeError) as e:
         raise SystemExit(f"--preset {a.preset} --set {a.overrides}: {e}") from None
+
+
+def with_field(conf, path: list[str], value):
+    """`conf` with the (possibly nested) field `path` replaced by `value`."""
+    if not dataclasses.is_dataclass(conf) or path[0] not in {f.name for f in dataclasses.fields(conf)}:
+        raise ValueError(f"no field {path[0]!r} in {type(conf).__name__}")
+    inner = value if len(path) == 1 else with_field(getattr(conf, path[0]), path[1:], value)
+    return dataclasses.replace(conf, **{path[0]: inner})
 
 
 def measure(run: Run, a: argparse.Namespace) -> None:
