@@ -469,18 +469,18 @@ def _one_part(batch: Batch) -> Dataset:
 
 # ------------------------------------------------------------------ the loop
 def make_student(config: TrainConfig, env: VecEnv) -> StudentPolicy:
-    """A fresh student for the env's observation (with `drive_waypoints`, the run's student config takes
-    the env's robot for its pure pursuit)."""
+    """A fresh student for the env's observation (with `drive_waypoints`, its config takes the env's robot
+    for its pure pursuit)."""
     space = env.observation_space
     if not hasattr(space, "spaces") or "image" not in space.spaces:
         raise DistillError(f"observation_mismatch: the student needs the Dict image + vector observation, "
                            f"env {config.env_id} gives {space}")
-    if config.distill.student.drive_waypoints:  # its pure pursuit steers the env's robot, as the teacher's does
+    student_config = config.distill.student
+    if student_config.drive_waypoints:  # its pure pursuit steers the env's robot, as the teacher's does
         robot = env.get_attr("config", indices=[0])[0].robot
-        config.distill.student = replace(config.distill.student, wheelbase=robot.wheelbase,
-                                         max_steer_deg=robot.max_steer_deg)
+        student_config = replace(student_config, wheelbase=robot.wheelbase, max_steer_deg=robot.max_steer_deg)
     torch.manual_seed(config.seed)
-    return StudentPolicy(config.distill.student, space["image"].shape, space["vector"].shape).eval()
+    return StudentPolicy(student_config, space["image"].shape, space["vector"].shape).eval()
 
 
 def make_optimizer(student: StudentPolicy, d: DistillConfig, state: Optional[dict] = None) -> torch.optim.Optimizer:
@@ -553,7 +553,7 @@ def _train_rounds(config: TrainConfig, resume: bool, log: Optional[Any]) -> Trai
     writer = SummaryWriter(str(run / "tb" / "distill"))
     try:
         student = make_student(config, env)
-        (run / "student.json").write_text(json.dumps({"student": d.student.to_dict(),
+        (run / "student.json").write_text(json.dumps({"student": student.config.to_dict(),
                                                       "image_shape": list(student.image_shape),
                                                       "vector_shape": list(student.vector_shape)}, indent=2))
         optimizer = make_optimizer(student, d)
