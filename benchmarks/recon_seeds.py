@@ -8,7 +8,7 @@ the mean and spread. POSED is a factory work folder's `metric` stage (the PosedC
 stage reads), e.g. `vid2sim-work/clips/<clip>/metric`.
 
     .venv/bin/python benchmarks/recon_seeds.py POSED [--seeds 0 1 2] [--preset fast] [--threads 2]
-        [--set FIELD=VALUE ...] [--label NAME]
+        [--set FIELD=VALUE ...] [--label NAME] [--keep DIR]
 
 `--set` replaces `ReconConfig` fields of the preset, top-level or nested by a dotted name (a schedule
 variant, e.g. `--set coarse_iterations=1000 --set coarse_scale=0.5`, `--set densify.stop_iter=1200`);
@@ -29,7 +29,7 @@ from vid2sim.factory.recon import trainer
 from vid2sim.factory.recon.config import preset
 from vid2sim.threads import set_thread_pools
 
-METRICS = {"psnr": "dB", "ssim": "", "n_gaussians": "", "train_seconds": "s"}
+METRICS = {"psnr": "dB", "ssim": "", "n_gaussians": "", "train_seconds": "s", "train_cpu_seconds": "s"}
 
 
 def main() -> None:
@@ -41,6 +41,8 @@ def main() -> None:
     ap.add_argument("--set", dest="overrides", action="append", default=[], metavar="FIELD=VALUE",
                     help="replace a ReconConfig field of the preset, nested ones by a dotted name (repeatable)")
     ap.add_argument("--label", default=None, help="case name (default: the PosedClip folder)")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="keep each seed's reconstruction in KEEP/seed-N (default: a temporary folder)")
     add_run_args(ap)
     a = ap.parse_args()
     if not (a.posed / "cameras.parquet").is_file():
@@ -90,14 +92,19 @@ def measure(run: Run, a: argparse.Namespace) -> None:
     psnrs = []
     for seed in a.seeds:
         conf = config(a, seed)
-        with tempfile.TemporaryDirectory(prefix="recon-seed-") as out:
-            summary = trainer.build(conf, a.posed, Path(out), f"seed-{seed}")
+        if a.keep is not None:
+            (a.keep / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
+            summary = trainer.build(conf, a.posed, a.keep / f"seed-{seed}", f"seed-{seed}")
+        else:
+            with tempfile.TemporaryDirectory(prefix="recon-seed-") as out:
+                summary = trainer.build(conf, a.posed, Path(out), f"seed-{seed}")
         values = {k: summary[k] for k in METRICS}
         run.record_all(f"{label}, seed {seed}", values, METRICS,
                        {"preset": a.preset, "threads": a.threads, "seed": seed})
         psnrs.append(values["psnr"])
         print(f"seed {seed}: PSNR {values['psnr']:.2f} dB, SSIM {values['ssim']:.3f}, "
-              f"{values['n_gaussians']} Gaussians, training {values['train_seconds']:.1f} s", flush=True)
+              f"{values['n_gaussians']} Gaussians, training {values['train_seconds']:.1f} s "
+              f"({values['train_cpu_seconds']:.1f} CPU-s)", flush=True)
     mean = statistics.fmean(psnrs)
     spread = max(psnrs) - min(psnrs)
     run.record_all(f"{label}, {len(psnrs)} seeds", {"psnr_mean": mean, "psnr_spread": spread}, "dB",
