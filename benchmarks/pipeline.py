@@ -7,7 +7,8 @@
 `gopro` reads ../shared/data (skips with a message when absent). `speed` ingests the demo street
 (generated, with ground truth) and the GoPro clip (when present) once with each reconstruction
 preset (`--before fast --after quick` by default, everything else equal; `--after none` runs the
-`before` column alone, e.g. to compare two commits) and prints per-stage
+`before` column alone, e.g. to compare two commits; `--before-set` / `--after-set FIELD=VALUE` change
+a column's preset, e.g. `--after fast --after-set iterations=1500`) and prints per-stage
 wall seconds, the recon stage's process CPU seconds and the quality figures side by side: held-out
 PSNR / SSIM, the walked corridor (path on walkable, pieces, corridor area) and, on the demo
 street, walkable IoU and collision-mesh accuracy / completeness against ground truth. `parallel` compares
@@ -114,13 +115,15 @@ def bench_parallel(run: Run, args: argparse.Namespace) -> None:
         shutil.rmtree(root, ignore_errors=True)
 
 
-def ingest_with(video: str, work: Path, recon: str, **kw):
-    """One clip through the pipeline with recon preset `recon`: (wall s, ClipResult, registry)."""
+def ingest_with(video: str, work: Path, recon: str, sets: list[str], **kw):
+    """One clip through the pipeline with recon preset `recon` and its `sets` ('field=value', dotted
+    names reach nested fields): (wall s, ClipResult, registry)."""
     from dataclasses import replace
 
+    from vid2sim.cli.settings import apply_overrides
     from vid2sim.factory.recon.config import preset as recon_preset
 
-    conf = replace(preset("fast"), recon=recon_preset(recon))
+    conf = replace(preset("fast"), recon=apply_overrides(recon_preset(recon), sets))
     t0 = time.perf_counter()
     report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=conf, num_cpus=2, **kw)
     return time.perf_counter() - t0, report.results[0], str(work / "registry")
@@ -190,18 +193,20 @@ def bench_speed(run: Run, args: argparse.Namespace) -> None:
         run.skip("gopro", f"{video} is absent (benchmarks read ../shared/data beside the project)")
     for name, path, synth_dir, kw in clips:
         cols = {}
-        columns = [("before", args.before)] + ([("after", args.after)] if args.after != "none" else [])
-        for label, recon in columns:
+        columns = [("before", args.before, args.before_set)]
+        columns += [("after", args.after, args.after_set)] if args.after != "none" else []
+        for label, recon, sets in columns:
             work = root / f"{name.replace(' ', '-')}-{label}"
-            wall, result, registry = ingest_with(path, work, recon, **kw)
+            wall, result, registry = ingest_with(path, work, recon, sets, **kw)
+            recon = " ".join([recon, *sets])
             cols[label] = {"recon preset": recon, "video to registered scene s": wall,
                            **clip_figures(result, registry, synth_dir)}
             run.record_all(f"{name}: {label} ({recon})", {k: v for k, v in cols[label].items()
                                                           if isinstance(v, (int, float))})
         cols.setdefault("after", {})
         keys = list(dict.fromkeys([*cols["before"], *cols["after"]]))
-        versus = f" vs {args.after} (after)" if args.after != "none" else ""
-        print(f"\n## {name}: recon preset {args.before} (before){versus}")
+        versus = f" vs {' '.join([args.after, *args.after_set])} (after)" if args.after != "none" else ""
+        print(f"\n## {name}: recon preset {' '.join([args.before, *args.before_set])} (before){versus}")
         print(f"{'figure':<36}{'before':>14}{'after':>14}")
         for k in keys:
             print(f"{k:<36}{_fmt(cols['before'].get(k)):>14}{_fmt(cols['after'].get(k)):>14}")
@@ -220,11 +225,25 @@ def main() -> None:
     ap.add_argument("--before", default="fast", help="speed: the recon preset of the 'before' column")
     ap.add_argument("--after", default="quick",
                     help="speed: the recon preset of the 'after' column ('none': the 'before' column alone)")
+    for side in ("before", "after"):
+        ap.add_argument(f"--{side}-set", action="append", default=[], metavar="FIELD=VALUE",
+                        help=f"speed: replace a field of the '{side}' column's recon preset, nested ones by a "
+                             f"dotted name (e.g. densify.stop_iter=1000; repeatable)")
     ap.add_argument("--clips", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
     add_run_args(ap)
     args = ap.parse_args()
+    if args.what == "speed":  # a bad preset or setting fails before any ingest
+        from vid2sim.cli.settings import SettingError, apply_overrides
+        from vid2sim.factory.recon.config import preset as recon_preset
+
+        for recon, sets in ((args.before, args.before_set), (args.after, args.after_set)):
+            try:
+                if recon != "none":
+                    apply_overrides(recon_preset(recon), sets)
+            except (SettingError, ValueError) as e:
+                raise SystemExit(f"--{'before' if recon == args.before else 'after'} {recon}: {e}") from None
     with Run("pipeline", args) as run:
         {"gopro": bench_gopro, "parallel": bench_parallel, "speed": bench_speed}[args.what](run, args)
 

@@ -12,21 +12,21 @@ stage reads), e.g. `vid2sim-work/clips/<clip>/metric`.
 
 `--set` replaces `ReconConfig` fields of the preset, top-level or nested by a dotted name (a schedule
 variant, e.g. `--set coarse_iterations=1000 --set coarse_scale=0.5`, `--set densify.stop_iter=1200`);
-values are read as JSON, else as text.
+values parse as the field's type (`vid2sim ingest --set`'s rules).
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 import statistics
 import tempfile
 from pathlib import Path
 
 from common import Run, add_run_args
+from vid2sim.cli.settings import SettingError, apply_overrides
 from vid2sim.factory.recon import trainer
 from vid2sim.factory.recon.config import preset
+from vid2sim.ranges import RangeError
 from vid2sim.threads import set_thread_pools
 
 METRICS = {"psnr": "dB", "ssim": "", "n_gaussians": "", "train_seconds": "s", "train_cpu_seconds": "s"}
@@ -47,44 +47,18 @@ def main() -> None:
     a = ap.parse_args()
     if not (a.posed / "cameras.parquet").is_file():
         raise SystemExit(f"{a.posed}: not a PosedClip folder (cameras.parquet missing)")
-    a.overrides = parse_overrides(a.overrides)
     config(a, 0)  # unknown fields or presets fail before any work
     set_thread_pools(a.threads)
     with Run("recon_seeds", a) as run:
         measure(run, a)
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """`FIELD=VALUE` strings -> {field: value}, values read as JSON where they parse."""
-    out = {}
-    for item in items:
-        field, sep, text = item.partition("=")
-        if not sep or not field:
-            raise SystemExit(f"--set {item!r}: expected FIELD=VALUE")
-        try:
-            out[field] = json.loads(text)
-        except json.JSONDecodeError:
-            out[field] = text
-    return out
-
-
 def config(a: argparse.Namespace, seed: int):
-    """The preset with the `--set` fields and the seed."""
+    """The preset with the `--set` fields (dotted names reach nested configs) and the seed."""
     try:
-        conf = preset(a.preset, seed=seed)
-        for name, value in a.overrides.items():
-            conf = with_field(conf, name.split("."), value)
-        return conf
-    except (TypeError, ValueError, AttributeError) as e:
-        raise SystemExit(f"--preset {a.preset} --set {a.overrides}: {e}") from None
-
-
-def with_field(conf, path: list[str], value):
-    """`conf` with the (possibly nested) field `path` replaced by `value`."""
-    if not dataclasses.is_dataclass(conf) or path[0] not in {f.name for f in dataclasses.fields(conf)}:
-        raise ValueError(f"no field {path[0]!r} in {type(conf).__name__}")
-    inner = value if len(path) == 1 else with_field(getattr(conf, path[0]), path[1:], value)
-    return dataclasses.replace(conf, **{path[0]: inner})
+        return apply_overrides(preset(a.preset, seed=seed), a.overrides)
+    except (SettingError, RangeError, ValueError) as e:
+        raise SystemExit(f"--preset {a.preset}: {e}") from None
 
 
 def measure(run: Run, a: argparse.Namespace) -> None:
