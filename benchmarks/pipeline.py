@@ -238,12 +238,12 @@ def main() -> None:
         from vid2sim.cli.settings import SettingError, apply_overrides
         from vid2sim.factory.recon.config import preset as recon_preset
 
-        for recon, sets in ((args.before, args.before_set), (args.after, args.after_set)):
+        for side, recon, sets in (("before", args.before, args.before_set), ("after", args.after, args.after_set)):
             try:
                 if recon != "none":
                     apply_overrides(recon_preset(recon), sets)
             except (SettingError, ValueError) as e:
-                raise SystemExit(f"--{'before' if recon == args.before else 'after'} {recon}: {e}") from None
+                raise SystemExit(f"--{side} {recon}: {e}") from None
     with Run("pipeline", args) as run:
         {"gopro": bench_gopro, "parallel": bench_parallel, "speed": bench_speed}[args.what](run, args)
 
