@@ -115,15 +115,25 @@ def bench_parallel(run: Run, args: argparse.Namespace) -> None:
         shutil.rmtree(root, ignore_errors=True)
 
 
-def ingest_with(video: str, work: Path, recon: str, sets: list[str], **kw):
-    """One clip through the pipeline with recon preset `recon` and its `sets` ('field=value', dotted
-    names reach nested fields): (wall s, ClipResult, registry)."""
-    from dataclasses import replace
-
+def recon_config(recon: str, sets: list[str]):
+    """Recon preset `recon` with its `sets` ('field=value', dotted names reach nested fields); a bad
+    name or value raises ValueError naming the field and the reason."""
     from vid2sim.cli.settings import apply_overrides
     from vid2sim.factory.recon.config import preset as recon_preset
 
-    conf = replace(preset("fast"), recon=apply_overrides(recon_preset(recon), sets))
+    return apply_overrides(recon_preset(recon), sets)
+
+
+def column_label(recon: str, sets: list[str]) -> str:
+    """A column's recon preset and its settings, e.g. 'fast iterations=1500'."""
+    return " ".join([recon, *sets])
+
+
+def ingest_with(video: str, work: Path, recon: str, sets: list[str], **kw):
+    """One clip through the pipeline with `recon_config(recon, sets)`: (wall s, ClipResult, registry)."""
+    from dataclasses import replace
+
+    conf = replace(preset("fast"), recon=recon_config(recon, sets))
     t0 = time.perf_counter()
     report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=conf, num_cpus=2, **kw)
     return time.perf_counter() - t0, report.results[0], str(work / "registry")
@@ -198,15 +208,15 @@ def bench_speed(run: Run, args: argparse.Namespace) -> None:
         for label, recon, sets in columns:
             work = root / f"{name.replace(' ', '-')}-{label}"
             wall, result, registry = ingest_with(path, work, recon, sets, **kw)
-            recon = " ".join([recon, *sets])
+            recon = column_label(recon, sets)
             cols[label] = {"recon preset": recon, "video to registered scene s": wall,
                            **clip_figures(result, registry, synth_dir)}
             run.record_all(f"{name}: {label} ({recon})", {k: v for k, v in cols[label].items()
                                                           if isinstance(v, (int, float))})
         cols.setdefault("after", {})
         keys = list(dict.fromkeys([*cols["before"], *cols["after"]]))
-        versus = f" vs {' '.join([args.after, *args.after_set])} (after)" if args.after != "none" else ""
-        print(f"\n## {name}: recon preset {' '.join([args.before, *args.before_set])} (before){versus}")
+        versus = f" vs {column_label(args.after, args.after_set)} (after)" if args.after != "none" else ""
+        print(f"\n## {name}: recon preset {column_label(args.before, args.before_set)} (before){versus}")
         print(f"{'figure':<36}{'before':>14}{'after':>14}")
         for k in keys:
             print(f"{k:<36}{_fmt(cols['before'].get(k)):>14}{_fmt(cols['after'].get(k)):>14}")
@@ -235,14 +245,11 @@ def main() -> None:
     add_run_args(ap)
     args = ap.parse_args()
     if args.what == "speed":  # a bad preset or setting fails before any ingest
-        from vid2sim.cli.settings import SettingError, apply_overrides
-        from vid2sim.factory.recon.config import preset as recon_preset
-
         for side, recon, sets in (("before", args.before, args.before_set), ("after", args.after, args.after_set)):
             try:
                 if recon != "none":
-                    apply_overrides(recon_preset(recon), sets)
-            except (SettingError, ValueError) as e:
+                    recon_config(recon, sets)
+            except ValueError as e:
                 raise SystemExit(f"--{side} {recon}: {e}") from None
     with Run("pipeline", args) as run:
         {"gopro": bench_gopro, "parallel": bench_parallel, "speed": bench_speed}[args.what](run, args)

@@ -18,15 +18,16 @@ values parse as the field's type (`vid2sim ingest --set`'s rules).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import tempfile
 from pathlib import Path
+from typing import Iterator
 
 from common import Run, add_run_args
-from vid2sim.cli.settings import SettingError, apply_overrides
+from vid2sim.cli.settings import apply_overrides
 from vid2sim.factory.recon import trainer
 from vid2sim.factory.recon.config import preset
-from vid2sim.ranges import RangeError
 from vid2sim.threads import set_thread_pools
 
 METRICS = {"psnr": "dB", "ssim": "", "n_gaussians": "", "train_seconds": "s", "train_cpu_seconds": "s"}
@@ -57,8 +58,19 @@ def config(a: argparse.Namespace, seed: int):
     """The preset with the `--set` fields (dotted names reach nested configs) and the seed."""
     try:
         return apply_overrides(preset(a.preset, seed=seed), a.overrides)
-    except (SettingError, RangeError, ValueError) as e:
+    except ValueError as e:  # SettingError, RangeError: the field and the reason
         raise SystemExit(f"--preset {a.preset}: {e}") from None
+
+
+@contextlib.contextmanager
+def output_folder(keep: Path | None, seed: int) -> Iterator[Path]:
+    """KEEP/seed-N (created, kept) or a temporary folder removed afterwards."""
+    if keep is None:
+        with tempfile.TemporaryDirectory(prefix="recon-seed-") as out:
+            yield Path(out)
+    else:
+        (keep / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
+        yield keep / f"seed-{seed}"
 
 
 def measure(run: Run, a: argparse.Namespace) -> None:
@@ -66,12 +78,8 @@ def measure(run: Run, a: argparse.Namespace) -> None:
     psnrs = []
     for seed in a.seeds:
         conf = config(a, seed)
-        if a.keep is not None:
-            (a.keep / f"seed-{seed}").mkdir(parents=True, exist_ok=True)
-            summary = trainer.build(conf, a.posed, a.keep / f"seed-{seed}", f"seed-{seed}")
-        else:
-            with tempfile.TemporaryDirectory(prefix="recon-seed-") as out:
-                summary = trainer.build(conf, a.posed, Path(out), f"seed-{seed}")
+        with output_folder(a.keep, seed) as out:
+            summary = trainer.build(conf, a.posed, out, f"seed-{seed}")
         values = {k: summary[k] for k in METRICS}
         run.record_all(f"{label}, seed {seed}", values, METRICS,
                        {"preset": a.preset, "threads": a.threads, "seed": seed})
