@@ -39,6 +39,7 @@ import numpy as np  # noqa: E402
 from common import Run, add_run_args, cpu_seconds  # noqa: E402
 from street_registry import build, scene_id as street_id  # noqa: E402
 
+from vid2sim.envs.obstacles import EXTRA_KINDS, OBSTACLE_KINDS  # noqa: E402
 from vid2sim.registry import Registry  # noqa: E402
 from vid2sim.registry.split import SplitConfig, make_split  # noqa: E402
 from vid2sim.training.config import DistillConfig, EVICTIONS, TrainConfig  # noqa: E402
@@ -185,14 +186,21 @@ def camera_kwargs(args) -> dict:
 
 
 def obstacle_kwargs(args) -> dict:
-    """The training envs' obstacle count override (--train-obstacles MIN MAX; the evaluation keeps
-    the protocol's 0-5), {} for the envs' own."""
-    if not args.train_obstacles:
-        return {}
-    lo, hi = args.train_obstacles
-    if not 0 <= lo <= hi:
-        raise SystemExit(f"--train-obstacles {lo} {hi}: need 0 <= MIN <= MAX")
-    return {"obstacles": {"min_count": lo, "max_count": hi}}
+    """The training envs' obstacle overrides (--train-obstacles MIN MAX, --train-obstacle-kinds
+    KIND...; the evaluation keeps the protocol's 0-5 of its five kinds), {} for the envs' own."""
+    out: dict = {}
+    if args.train_obstacles:
+        lo, hi = args.train_obstacles
+        if not 0 <= lo <= hi:
+            raise SystemExit(f"--train-obstacles {lo} {hi}: need 0 <= MIN <= MAX")
+        out.update(min_count=lo, max_count=hi)
+    if args.train_obstacle_kinds:
+        known = OBSTACLE_KINDS + EXTRA_KINDS
+        unknown = [k for k in args.train_obstacle_kinds if k not in known]
+        if unknown:
+            raise SystemExit(f"--train-obstacle-kinds: unknown kind(s) {unknown}; choose from {', '.join(known)}")
+        out["kinds"] = list(args.train_obstacle_kinds)
+    return {"obstacles": out} if out else {}
 
 
 def variant_kwargs(args) -> dict:
@@ -413,6 +421,9 @@ def main() -> None:
                     help="the camera's vertical field of view in deg, trained and evaluated (0: the robot's 60)")
     ap.add_argument("--train-obstacles", type=int, nargs=2, default=None, metavar=("MIN", "MAX"),
                     help="static obstacles per training episode (default: the envs' 0-5; evaluation keeps 0-5)")
+    ap.add_argument("--train-obstacle-kinds", nargs="+", default=None, metavar="KIND",
+                    help="obstacle kinds of the training episodes, drawn uniformly (default: the protocol's five; "
+                         "'planter' adds the sidewalk planter; evaluation keeps the protocol's)")
     ap.add_argument("--keypoints", type=int, default=StudentConfig.keypoints,
                     help="student: K spatial-softmax keypoints per frame instead of the flattened conv map (0: off)")
     ap.add_argument("--waypoints", type=int, default=StudentConfig.waypoints,

@@ -8,7 +8,7 @@ import numpy as np
 import pybullet as pb
 import pytest
 
-from vid2sim.envs.obstacles import (OBSTACLE_KINDS, ObstacleConfig, ObstacleSet, Placement,
+from vid2sim.envs.obstacles import (EXTRA_KINDS, OBSTACLE_KINDS, ObstacleConfig, ObstacleSet, Placement,
                                     falling_bin, make_obstacle, occupancy, place_on_corridor,
                                     roadworks)
 
@@ -16,7 +16,7 @@ K = np.array([[64.0, 0.0, 64.0], [0.0, 64.0, 36.0], [0.0, 0.0, 1.0]])
 # camera 0.6 m above the origin looking along +x (OpenCV axes: rows = camera x, y, z in world)
 W2C = np.array([[0, -1, 0, 0], [0, 0, -1, 0.6], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=np.float64)
 HEIGHTS = {"traffic_cone": (0.5, 0.75), "trash_bin": (0.9, 1.13), "pole": (2.5, 3.5),
-           "traffic_light": (2.8, 3.4), "barrier": (0.95, 1.0)}
+           "traffic_light": (2.8, 3.4), "barrier": (0.95, 1.0), "planter": (0.6, 1.3)}
 
 
 @pytest.fixture()
@@ -29,7 +29,7 @@ def client():
     pb.disconnect(cid)
 
 
-@pytest.mark.parametrize("kind", OBSTACLE_KINDS)
+@pytest.mark.parametrize("kind", OBSTACLE_KINDS + EXTRA_KINDS)
 def test_meshes_are_metric_and_coloured(kind: str) -> None:
     for seed in range(5):
         m = make_obstacle(kind, np.random.default_rng(seed))
@@ -100,6 +100,33 @@ def test_placement_on_corridor_is_reproducible_and_near_the_path() -> None:
     none = place_on_corridor(path, np.random.default_rng(0), ObstacleConfig(min_count=5),
                              is_walkable=lambda x, y: False)
     assert none == []
+
+
+def test_planters_only_where_named_long_side_along_the_path(client: int) -> None:
+    path = np.array([[0.0, 0.0], [20.0, 0.0]])
+    default = [p.mesh.kind for s in range(30) for p in place_on_corridor(path, np.random.default_rng(s))]
+    assert "planter" not in default and set(default) <= set(OBSTACLE_KINDS)
+    conf = ObstacleConfig(min_count=3, max_count=3, kinds=("planter",))
+    placed = place_on_corridor(path, np.random.default_rng(0), conf)
+    assert [p.mesh.kind for p in placed] == ["planter"] * 3
+    for p in placed:
+        v = p.mesh.vertices
+        assert np.ptp(v[:, 0]) > np.ptp(v[:, 1])  # long side along local x ...
+        assert abs(p.yaw) <= 0.3 + 1e-9  # ... which points along the path
+    first = placed[0]
+    obs = ObstacleSet(client, [first])
+    x, y = first.xy
+    hit = pb.rayTest([x - 3, y, 0.3], [x + 3, y, 0.3], physicsClientId=client)[0]
+    assert hit[0] == obs.body_ids[0] and hit[3][0] < x - 0.4  # the box, end-on, from 0.45 m ahead of its centre
+
+
+def test_obstacle_config_names_a_bad_kind_or_count() -> None:
+    with pytest.raises(ValueError, match="unknown kind.*sofa"):
+        ObstacleConfig(kinds=("pole", "sofa"))
+    with pytest.raises(ValueError, match="none given"):
+        ObstacleConfig(kinds=())
+    with pytest.raises(ValueError, match="min_count 4 > max_count 2"):
+        ObstacleConfig(min_count=4, max_count=2)
 
 
 @pytest.mark.parametrize("seed", [2, 4])  # the bin stands left of the path, then right

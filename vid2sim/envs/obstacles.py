@@ -11,6 +11,12 @@ from realistic ranges (metres):
 | pole | cylinder | r 0.04-0.07, 2.5-3.5 tall |
 | traffic_light | pole + housing with red/amber/green lamps | 2.8-3.4 tall |
 | barrier | two legs + red/white striped plank | 1.2-2.0 wide, 1.0 tall |
+| planter | box + three foliage blocks, long side along the path | 0.9-1.8 x 0.5-0.8, 0.4-0.7 tall + plants |
+
+`OBSTACLE_KINDS` is the evaluation protocol's library (the paper's cones, bins, poles and traffic
+lights, plus barriers). `planter` (the street generator's sidewalk planters, as an obstacle) is
+drawn only where a config names it (`ObstacleConfig.kinds`): a box seen end-on that leaves a gap
+barely twice the robot's width, the lane change the students miss on narrow sidewalks.
 
 Collision: one convex pybullet shape per part (so a traffic light's housing does not fill the
 space beside its pole). Face colours carry a fixed Lambert shading baked at creation
@@ -35,7 +41,8 @@ from .raster import rasterize, rasterize_into
 
 pb = import_pybullet()  # without its "pybullet build time" banner
 
-OBSTACLE_KINDS = ("traffic_cone", "trash_bin", "pole", "traffic_light", "barrier")
+OBSTACLE_KINDS = ("traffic_cone", "trash_bin", "pole", "traffic_light", "barrier")  # the protocol's
+EXTRA_KINDS = ("planter",)  # drawn only where a config names them
 LIGHT_DIR = np.array([0.35, 0.25, 0.9]) / np.linalg.norm([0.35, 0.25, 0.9])
 
 ORANGE, WHITE, BLACK = (240, 90, 20), (235, 235, 235), (25, 25, 25)
@@ -146,14 +153,28 @@ def _barrier(rng: np.random.Generator) -> ObstacleMesh:
     return ObstacleMesh("barrier", parts, colors, mass=20.0)
 
 
+def _planter(rng: np.random.Generator) -> ObstacleMesh:
+    """A sidewalk planter as the street generator makes them (synthetic/street.py): a box, long
+    side along local x, with foliage blocks on top; footprint centred on the origin."""
+    lx, ly, h = rng.uniform(0.9, 1.8), rng.uniform(0.5, 0.8), rng.uniform(0.4, 0.7)
+    parts = [_box(lx, ly, h, (0, 0, h / 2))]
+    colors = [tuple(int(c) for c in rng.uniform(115, 190, 3))]
+    for _ in range(3):
+        fx, fy, fh = lx * 0.4, ly * 0.5, rng.uniform(0.2, 0.6)
+        cx, cy = rng.uniform(-lx / 2, lx / 2 - fx) + fx / 2, rng.uniform(-ly / 2, ly / 2 - fy) + fy / 2
+        parts.append(_box(fx, fy, fh, (cx, cy, h + fh / 2)))
+        colors.append((64, int(rng.uniform(115, 153)), 46))
+    return ObstacleMesh("planter", parts, colors, mass=150.0)
+
+
 _MAKERS = {"traffic_cone": _cone, "trash_bin": _bin, "pole": _pole, "traffic_light": _light,
-           "barrier": _barrier}
+           "barrier": _barrier, "planter": _planter}
 
 
 def make_obstacle(kind: str, rng: np.random.Generator) -> ObstacleMesh:
-    """A new procedural obstacle of `kind` (one of OBSTACLE_KINDS) with sizes drawn from rng."""
+    """A new procedural obstacle of `kind` (OBSTACLE_KINDS or EXTRA_KINDS) with sizes drawn from rng."""
     if kind not in _MAKERS:
-        raise ValueError(f"unknown obstacle kind {kind!r}; choose from {', '.join(OBSTACLE_KINDS)}")
+        raise ValueError(f"unknown obstacle kind {kind!r}; choose from {', '.join(_MAKERS)}")
     return _MAKERS[kind](rng)
 
 
@@ -318,12 +339,20 @@ class ObstacleConfig:
 
     min_count: int = 0  # fewest obstacles per episode
     max_count: int = 5  # most obstacles per episode (the count is drawn uniformly, inclusive)
-    kinds: tuple[str, ...] = OBSTACLE_KINDS  # obstacle kinds drawn from, uniformly
+    kinds: tuple[str, ...] = OBSTACLE_KINDS  # obstacle kinds drawn from, uniformly (EXTRA_KINDS too)
     lateral: float = 0.6  # m: max offset of an obstacle from the A* path
     end_clearance: float = 1.5  # m: no obstacle this close to start or goal (along the path)
     spacing: float = 1.5  # m: min distance along the path between two obstacles
     falling_bin: bool = False  # safety scenario: a bin tips over into the corridor
     roadworks: bool = False  # safety scenario: barriers and cones narrow the corridor
+
+    def __post_init__(self) -> None:
+        unknown = [k for k in self.kinds if k not in _MAKERS]
+        if unknown or not self.kinds:
+            raise ValueError(f"ObstacleConfig.kinds {tuple(self.kinds)!r}: unknown kind(s) {unknown} "
+                             f"or none given; choose from {', '.join(_MAKERS)}")
+        if self.min_count > self.max_count:
+            raise ValueError(f"ObstacleConfig: min_count {self.min_count} > max_count {self.max_count}")
 
 
 def _arc(path: np.ndarray) -> np.ndarray:
