@@ -8,7 +8,8 @@
 (generated, with ground truth) and the GoPro clip (when present) once with each reconstruction
 preset (`--before fast --after quick` by default, everything else equal; `--after none` runs the
 `before` column alone, e.g. to compare two commits; `--before-set` / `--after-set FIELD=VALUE` change
-a column's preset, e.g. `--after fast --after-set iterations=1500`) and prints per-stage
+a column's recon preset, e.g. `--after fast --after-set iterations=1500`, or another stage's config
+by its section, e.g. `--after-set sfm.tracks_per_view=200`) and prints per-stage
 wall seconds, the recon stage's process CPU seconds and the quality figures side by side: held-out
 PSNR / SSIM, the walked corridor (path on walkable, pieces, corridor area) and, on the demo
 street, walkable IoU and collision-mesh accuracy / completeness against ground truth. `parallel` compares
@@ -115,13 +116,20 @@ def bench_parallel(run: Run, args: argparse.Namespace) -> None:
         shutil.rmtree(root, ignore_errors=True)
 
 
-def recon_config(recon: str, sets: list[str]):
-    """Recon preset `recon` with its `sets` ('field=value', dotted names reach nested fields); a bad
-    name or value raises ValueError naming the field and the reason."""
+def column_config(recon: str, sets: list[str]):
+    """The `fast` pipeline with recon preset `recon` and the column's `sets` ('field=value'): a dotted
+    name that starts with a pipeline section reaches that stage's config (sfm.tracks_per_view=200),
+    any other name is a recon field (iterations=1500, densify.stop_iter=1000). A bad name or value
+    raises ValueError naming the field and the reason."""
+    from dataclasses import fields, replace
+
     from vid2sim.cli.settings import apply_overrides
     from vid2sim.factory.recon.config import preset as recon_preset
+    from vid2sim.factory.runtime.config import PipelineConfig
 
-    return apply_overrides(recon_preset(recon), sets)
+    sections = {f.name for f in fields(PipelineConfig)}
+    scoped = [s if s.split("=", 1)[0].split(".", 1)[0] in sections else f"recon.{s}" for s in sets]
+    return apply_overrides(replace(preset("fast"), recon=recon_preset(recon)), scoped)
 
 
 def column_label(recon: str, sets: list[str]) -> str:
@@ -130,10 +138,8 @@ def column_label(recon: str, sets: list[str]) -> str:
 
 
 def ingest_with(video: str, work: Path, recon: str, sets: list[str], **kw):
-    """One clip through the pipeline with `recon_config(recon, sets)`: (wall s, ClipResult, registry)."""
-    from dataclasses import replace
-
-    conf = replace(preset("fast"), recon=recon_config(recon, sets))
+    """One clip through the pipeline with `column_config(recon, sets)`: (wall s, ClipResult, registry)."""
+    conf = column_config(recon, sets)
     t0 = time.perf_counter()
     report = ingest([video], str(work / "registry"), workdir=work / "clips", conf=conf, num_cpus=2, **kw)
     return time.perf_counter() - t0, report.results[0], str(work / "registry")
@@ -238,7 +244,8 @@ def main() -> None:
     for side in ("before", "after"):
         ap.add_argument(f"--{side}-set", action="append", default=[], metavar="FIELD=VALUE",
                         help=f"speed: replace a field of the '{side}' column's recon preset, nested ones by a "
-                             f"dotted name (e.g. densify.stop_iter=1000; repeatable)")
+                             f"dotted name (e.g. densify.stop_iter=1000), or of another stage by its section "
+                             f"(e.g. sfm.tracks_per_view=200; repeatable)")
     ap.add_argument("--clips", type=int, default=4)
     ap.add_argument("--seconds", type=float, default=4.0)
     ap.add_argument("--keep", action="store_true", help="keep the work folders")
@@ -248,7 +255,7 @@ def main() -> None:
         for side, recon, sets in (("before", args.before, args.before_set), ("after", args.after, args.after_set)):
             try:
                 if recon != "none":
-                    recon_config(recon, sets)
+                    column_config(recon, sets)
             except ValueError as e:
                 raise SystemExit(f"--{side} {recon}: {e}") from None
     with Run("pipeline", args) as run:

