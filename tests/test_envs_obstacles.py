@@ -123,7 +123,7 @@ def test_planters_only_where_named_long_side_along_the_path(client: int) -> None
 def test_obstacle_config_names_a_bad_kind_or_count() -> None:
     with pytest.raises(ValueError, match="unknown kind.*sofa"):
         ObstacleConfig(kinds=("pole", "sofa"))
-    with pytest.raises(ValueError, match="none given"):
+    with pytest.raises(ValueError, match="no kind given"):
         ObstacleConfig(kinds=())
     with pytest.raises(ValueError, match="min_count 4 > max_count 2"):
         ObstacleConfig(min_count=4, max_count=2)

@@ -32,15 +32,20 @@ def model_fingerprint(sfm_dir: Path) -> dict:
     }
 
 
-@pytest.mark.shared_data
-def test_same_frames_give_the_same_model(tmp_path):
+def kitti_frames(tmp_path: Path, n: int = 16) -> tuple[Path, list[float]]:
+    """The first n KITTI frames copied into tmp_path/frames, and the camera's PINHOLE intrinsics."""
     data = shared_data_path("kitti_rural")
     frames = tmp_path / "frames"
     frames.mkdir()
-    for name in sorted(p.name for p in (data / "image_l").iterdir())[:16]:
+    for name in sorted(p.name for p in (data / "image_l").iterdir())[:n]:
         shutil.copy(data / "image_l" / name, frames / name)
-    conf = sfm.preset("fast", camera_model="PINHOLE", camera_params=kitti_intrinsics(data / "calib.txt"),
-                      max_image_size=800, undistort=False)
+    return frames, kitti_intrinsics(data / "calib.txt")
+
+
+@pytest.mark.shared_data
+def test_same_frames_give_the_same_model(tmp_path):
+    frames, K = kitti_frames(tmp_path)
+    conf = sfm.preset("fast", camera_model="PINHOLE", camera_params=K, max_image_size=800, undistort=False)
     assert conf.deterministic and sfm.colmap_threads(conf) == 1
     runs = [model_fingerprint(run_stage(sfm.work(conf, frames, None), tmp_path / f"sfm{i}")) for i in range(2)]
     assert len(runs[0]["ids"]) >= 15 and len(runs[0]["points"]) > 200

@@ -4,14 +4,12 @@ solve on every track, most of its points, and still the same model bit for bit o
 
 from __future__ import annotations
 
-import shutil
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from conftest import shared_data_path
-from test_sfm_kitti import kitti_intrinsics
-from test_sfm_reproducible import model_fingerprint
+from test_sfm_reproducible import kitti_frames, model_fingerprint
 from vid2sim.factory.evaluation.poses import umeyama
 from vid2sim.factory.runtime.runner import run_stage
 from vid2sim.factory.sfm import sfm
@@ -19,16 +17,10 @@ from vid2sim.factory.sfm import sfm
 
 @pytest.mark.shared_data
 def test_a_track_selection_keeps_the_trajectory_and_the_points(tmp_path):
-    data = shared_data_path("kitti_rural")
-    frames = tmp_path / "frames"
-    frames.mkdir()
-    for name in sorted(p.name for p in (data / "image_l").iterdir())[:16]:
-        shutil.copy(data / "image_l" / name, frames / name)
-    base = sfm.preset("fast", camera_model="PINHOLE", camera_params=kitti_intrinsics(data / "calib.txt"),
-                      max_image_size=800, undistort=False)
+    frames, K = kitti_frames(tmp_path)
+    base = sfm.preset("fast", camera_model="PINHOLE", camera_params=K, max_image_size=800, undistort=False)
     full = model_fingerprint(run_stage(sfm.work(base, frames, None), tmp_path / "full"))
-    sel_conf = sfm.preset("fast", camera_model="PINHOLE", camera_params=base.camera_params,
-                          max_image_size=800, undistort=False, tracks_per_view=100)
+    sel_conf = replace(base, tracks_per_view=100)
     runs = [model_fingerprint(run_stage(sfm.work(sel_conf, frames, None), tmp_path / f"sel{i}")) for i in range(2)]
     sel = runs[0]
     assert sel["ids"] == full["ids"]  # the same frames registered

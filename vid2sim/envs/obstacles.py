@@ -349,8 +349,8 @@ class ObstacleConfig:
     def __post_init__(self) -> None:
         unknown = [k for k in self.kinds if k not in _MAKERS]
         if unknown or not self.kinds:
-            raise ValueError(f"ObstacleConfig.kinds {tuple(self.kinds)!r}: unknown kind(s) {unknown} "
-                             f"or none given; choose from {', '.join(_MAKERS)}")
+            reason = f"unknown kind(s) {unknown}" if unknown else "no kind given"
+            raise ValueError(f"ObstacleConfig.kinds {tuple(self.kinds)!r}: {reason}; choose from {', '.join(_MAKERS)}")
         if self.min_count > self.max_count:
             raise ValueError(f"ObstacleConfig: min_count {self.min_count} > max_count {self.max_count}")
 
